@@ -1,0 +1,40 @@
+# Two commands on a fresh machine: `make demo` (the main job) and `make test` (every test).
+# Both create .venv when it is missing and install everything the project needs into it.
+PYTHON ?= python3
+VENV := .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed
+export AMENT_PREFIX_PATH := $(abspath $(VENV))
+export PYTHONDONTWRITEBYTECODE := 1
+# numba's on-disk cache, keyed by the kernel sources so an edit never loads stale code
+KERNEL_HASH := $(shell cat sim_nodes/*.py sim_nodes/models/*.py sapga_ros/selector.py \
+	sapga_ros/kernels.py sapga_ros/qlearning.py 2>/dev/null | md5sum | cut -c1-12)
+export NUMBA_CACHE_DIR := $(abspath .cache/numba-$(KERNEL_HASH))
+OUT ?= out
+
+.PHONY: demo test bench venv clean
+
+venv: $(STAMP)
+
+$(VENV)/.requirements: requirements.txt
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --disable-pip-version-check --upgrade pip
+	$(PY) -m pip install --quiet --disable-pip-version-check -r requirements.txt
+	touch $@
+
+$(STAMP): $(VENV)/.requirements setup.py setup.cfg package.xml resource/sapga_ros \
+		$(shell find msg_configs -name '*.yaml' -o -name '*.yml' 2>/dev/null)
+	$(PY) -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation -e .
+	touch $(STAMP)
+
+demo: $(STAMP)
+	$(PY) -m sapga_ros.demo --out $(OUT)
+
+test: $(STAMP)
+	$(PY) -m pytest -q tests
+
+bench: $(STAMP)
+	$(VENV)/bin/sapga bench
+
+clean:
+	rm -rf $(VENV) .cache build install log *.egg-info $(OUT)

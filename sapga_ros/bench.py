@@ -1,0 +1,64 @@
+"""``sapga bench``: batch evaluation speed against a plain NumPy step-by-step loop.
+
+Measures policy-environment MDP steps per second for batch evaluation (100 exemplars per
+policy, 500 policies, full 400-step episodes: delta = 0 so no episode ends early) on one
+thread (the per-core figure) and on every core, and the ratio of the per-core figure to
+``sim_nodes.reference.episode`` (plain NumPy, one step at a time, one core) run in the same
+process on a few of the same policies.  Numbers only: nothing here asserts a time.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from sapga_ros.evaluation import Evaluator, set_jobs
+from sapga_ros.operators import random_exemplars
+from sapga_ros.policy import ExemplarPolicy
+from sim_nodes import reference
+from sim_nodes.problem import load_problem
+
+
+def bench_problem(name: str, policies: int = 500, exemplars: int = 100, seed: int = 0,
+                  baseline_policies: int = 2, repeats: int = 3) -> dict:
+    """Speed figures of one problem."""
+    problem = load_problem(name)
+    rng = np.random.default_rng(seed)
+    pols = [ExemplarPolicy(problem, *random_exemplars(problem, exemplars, rng))
+            for _ in range(policies)]
+    evaluator = Evaluator(problem, delta=0.0)  # delta 0: every episode runs 400 steps
+    evaluator.evaluate(pols[:2])               # compile outside the timing
+
+    def rate(jobs: int | None) -> tuple[float, int, int]:
+        threads = set_jobs(jobs)
+        best = np.inf
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            result = evaluator.evaluate(pols)
+            best = min(best, time.perf_counter() - t0)
+        return int(result.steps.sum()) / best, threads, int(result.steps.sum())
+
+    one_core, _, steps = rate(1)                # per core: one thread on one core
+    all_cores, threads, _ = rate(None)
+    set_jobs(None)
+    t0 = time.perf_counter()
+    base_steps = 0
+    for p in pols[:baseline_policies]:
+        ret, n, _, _ = reference.episode(problem, p.states, p.action_values, 0.0)
+        base_steps += n
+    base_time = time.perf_counter() - t0
+    base_rate = base_steps / base_time
+    return {'problem': name, 'threads': threads, 'steps': steps,
+            'steps_per_s_per_core': one_core, 'steps_per_s_all_cores': all_cores,
+            'numpy_steps_per_s': base_rate, 'speedup_vs_numpy': one_core / base_rate}
+
+
+def run_bench() -> dict:
+    """Both problems; the ratio is one core against the NumPy loop on one core."""
+    acro = bench_problem('acrobot')
+    pdip = bench_problem('pdip')
+    return {'acrobot_steps_per_s_per_core': acro['steps_per_s_per_core'],
+            'pdip_steps_per_s_per_core': pdip['steps_per_s_per_core'],
+            'speedup_vs_numpy': acro['speedup_vs_numpy'],
+            'pdip_speedup_vs_numpy': pdip['speedup_vs_numpy'],
+            'threads': acro['threads'], 'details': [acro, pdip]}

@@ -1,0 +1,326 @@
+"""The ``sapga`` command: train, evaluate, benchmark, inspect exemplars and recordings.
+
+    sapga train --problem P [--method sapga|ql] [--delta D] [--steps N] [--seed S]
+                [--jobs J] [--out FILE] [--checkpoint DIR] [--resume] [--init FILE ...]
+    sapga eval POLICY [--delta D] [--max-steps N] [--json]
+    sapga exemplars POLICY [--json] [--plot OUT.png] [--prune-unused OUT.json]
+    sapga bench [--json]
+    sapga inspect FILE.mcap [--json] [--plot OUT.png]
+    sapga launch NAME ...
+
+User errors (bad files, unknown problems, invalid numbers) print one line naming what is
+wrong and exit with status 2; no traceback.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+from sapga_ros.errors import SapgaError
+
+EXIT_USAGE = 2
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(float(text)) if 'e' in text.lower() else int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'expected a positive integer, got {text!r}')
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f'expected a positive integer, got {text!r}')
+    return value
+
+
+def _nonneg_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'expected an integer >= 0, got {text!r}')
+    if value < 0:
+        raise argparse.ArgumentTypeError(f'expected an integer >= 0, got {text!r}')
+    return value
+
+
+def _delta(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'expected a number, got {text!r}')
+    if not math.isfinite(value) or value < 0:
+        raise argparse.ArgumentTypeError(f'expected a finite delta >= 0, got {text!r}')
+    return value
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog='sapga', description='Exemplar-based policy search (SAP-GA) for pendulums.')
+    sub = parser.add_subparsers(dest='command', required=True, metavar='COMMAND')
+
+    t = sub.add_parser('train', help='evolve a policy (or run the Q-learning baseline)')
+    t.add_argument('--problem', required=True, help='problem name (msg_configs/<name>.yaml)')
+    t.add_argument('--method', choices=('sapga', 'ql'), default='sapga',
+                   help='SAP-GA (default) or tabular Q-learning')
+    t.add_argument('--delta', type=_delta, help='goal difficulty (default: the problem\'s)')
+    t.add_argument('--steps', type=_positive_int, default=30_000_000,
+                   help='budget of MDP steps simulated (default 30000000)')
+    t.add_argument('--seed', type=_nonneg_int, default=0, help='random seed (default 0)')
+    t.add_argument('--jobs', type=_nonneg_int, default=0,
+                   help='evaluation threads (default 0: every core)')
+    t.add_argument('--out', help='policy file to write (default runs/<problem>-<method>-'
+                                 'seed<seed>.json); the log goes beside it as .log.csv')
+    t.add_argument('--checkpoint', metavar='DIR', help='write checkpoints into DIR')
+    t.add_argument('--resume', action='store_true', help='continue from DIR\'s checkpoint')
+    t.add_argument('--init', action='append', default=[], metavar='FILE',
+                   help='policy file of hand-written exemplars to seed the population '
+                        '(repeatable; SAP-GA only)')
+    t.add_argument('--pop', type=_positive_int, default=100, help='N_pop (default 100)')
+    t.add_argument('--children', type=_positive_int, default=10, help='N_child (default 10)')
+    t.add_argument('--l-min', type=_positive_int, default=50, help='L_min (default 50)')
+    t.add_argument('--l-max', type=_positive_int, default=100, help='L_max (default 100)')
+    t.add_argument('--quiet', action='store_true', help='no progress display')
+
+    e = sub.add_parser('eval', help='run a policy\'s episode from the initial state')
+    e.add_argument('policy', help='policy file (sapga-policy/1 or sapga-qtable/1)')
+    e.add_argument('--delta', type=_delta, help='goal difficulty (default: the policy\'s '
+                                                'training delta, else the problem\'s)')
+    e.add_argument('--max-steps', type=_positive_int, help='N_step (default: the problem\'s)')
+    e.add_argument('--json', action='store_true', help='print one JSON object')
+
+    x = sub.add_parser('exemplars', help='list, plot or prune a policy\'s exemplars')
+    x.add_argument('policy')
+    x.add_argument('--delta', type=_delta)
+    x.add_argument('--json', action='store_true', help='print the list as JSON')
+    x.add_argument('--plot', metavar='OUT.png', help='draw exemplars and the trajectory')
+    x.add_argument('--prune-unused', metavar='OUT.json',
+                   help='write a copy without the exemplars its episode never refers to')
+
+    b = sub.add_parser('bench', help='batch evaluation speed vs a plain NumPy loop')
+    b.add_argument('--json', action='store_true', help='print one JSON object')
+
+    i = sub.add_parser('inspect', help='summarise (and plot) an MCAP recording')
+    i.add_argument('file')
+    i.add_argument('--json', action='store_true')
+    i.add_argument('--plot', metavar='OUT.png')
+
+    la = sub.add_parser('launch', help='start a group of nodes (swingup, train_deploy)',
+                        add_help=False)
+    la.add_argument('name')
+    la.add_argument('args', nargs=argparse.REMAINDER)
+    return parser
+
+
+def _default_out(args) -> Path:
+    return Path('runs') / f'{args.problem}-{args.method}-seed{args.seed}.json'
+
+
+def _write_log(path: Path, history: list[dict]) -> None:
+    if not history:
+        return
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, 'w', newline='', encoding='utf-8') as f:
+        writer = csv.DictWriter(f, fieldnames=list(history[0]))
+        writer.writeheader()
+        writer.writerows(history)
+
+
+class _Progress:
+    """tqdm bar on a terminal; a line every few seconds otherwise."""
+
+    def __init__(self, total: int, quiet: bool) -> None:
+        self.total = total
+        self.quiet = quiet
+        self.bar = None
+        self.last = 0.0
+        if not quiet and sys.stderr.isatty():
+            from tqdm import tqdm
+            self.bar = tqdm(total=total, unit='step', unit_scale=True, file=sys.stderr)
+
+    def __call__(self, row: dict) -> None:
+        text = (f"best {row['best_value']:.2f}  delta* {row['delta_star']:.4f}  "
+                f"{row['steps_per_s'] / 1e6:.2f} M steps/s")
+        if self.bar is not None:
+            self.bar.update(min(row['steps'], self.total) - self.bar.n)
+            self.bar.set_postfix_str(text)
+        elif not self.quiet and time.monotonic() - self.last > 5.0:
+            self.last = time.monotonic()
+            print(f"steps {row['steps']:>11,d}  {text}", file=sys.stderr, flush=True)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
+def cmd_train(args) -> int:
+    from sapga_ros.policy import load_policy
+    from sapga_ros.qlearning import train_ql
+    from sapga_ros.sapga import SapgaParams
+    from sapga_ros.train import TrainConfig, train_sapga
+    from sim_nodes.problem import load_problem
+
+    problem = load_problem(args.problem)
+    if args.l_min > args.l_max:
+        raise SapgaError(f'--l-min {args.l_min} is larger than --l-max {args.l_max}')
+    if args.pop < 2:
+        raise SapgaError('--pop must be at least 2')
+    initial = [load_policy(f, problem) for f in args.init]
+    if initial and args.method != 'sapga':
+        raise SapgaError('--init seeds a SAP-GA population; Q-learning takes none')
+    config = TrainConfig(problem=problem.name, method=args.method, delta=args.delta,
+                         steps=args.steps, seed=args.seed, jobs=args.jobs,
+                         checkpoint=args.checkpoint, resume=args.resume,
+                         params=SapgaParams(n_pop=args.pop, n_child=args.children,
+                                            l_min=args.l_min, l_max=args.l_max))
+    out = Path(args.out) if args.out else _default_out(args)
+    progress = _Progress(args.steps, args.quiet)
+    try:
+        if args.method == 'sapga':
+            result = train_sapga(config, initial, progress)
+        else:
+            result = train_ql(config, progress)
+    finally:
+        progress.close()
+    result.policy.save(out)
+    log = out.with_suffix('.log.csv')
+    _write_log(log, result.history)
+    meta = result.policy.meta
+    print(f"{problem.name} {args.method}: best value {meta['value']:.3f}, policy delta* "
+          f"{meta['delta_star']:.4f}, run delta* {meta['run_delta_star']:.4f} "
+          f"({'achieved' if meta['run_delta_star'] <= meta['delta'] else 'not achieved'} "
+          f"delta {meta['delta']}), {meta['steps']:,d} steps")
+    print(f'policy: {out}\nlog: {log}')
+    return 0
+
+
+def load_any_policy(path: str):
+    """A sapga-policy/1 or sapga-qtable/1 file, told apart by its ``format`` field."""
+    from sapga_ros.policy import load_policy
+    from sapga_ros.qlearning import FORMAT as QFORMAT, parse_json, qtable_from_document
+    from sapga_ros.policy import MAX_POLICY_BYTES
+    p = Path(path)
+    try:
+        size = p.stat().st_size
+    except OSError as exc:
+        raise SapgaError(f'{path}: cannot read ({exc.strerror})') from exc
+    if size > MAX_POLICY_BYTES:
+        return load_policy(p)  # refuses with the size message
+    with open(p, 'rb') as f:
+        head = f.read(4096)
+    if QFORMAT.encode() in head:
+        doc = parse_json(p.read_bytes(), str(p))
+        if isinstance(doc, dict) and doc.get('format') == QFORMAT:
+            return qtable_from_document(doc, str(p))
+    return load_policy(p)
+
+
+def _eval_delta(args, policy) -> float:
+    if args.delta is not None:
+        return args.delta
+    meta_delta = policy.meta.get('delta') if isinstance(policy.meta, dict) else None
+    if isinstance(meta_delta, (int, float)) and math.isfinite(meta_delta) and meta_delta >= 0:
+        return float(meta_delta)
+    return policy.problem.default_delta
+
+
+def run_policy_episode(policy, delta: float, max_steps: int | None = None):
+    from sapga_ros.evaluation import Evaluator
+    from sapga_ros.qlearning import QTable
+    if isinstance(policy, QTable):
+        return policy.episode(delta, max_steps)
+    return Evaluator(policy.problem, delta, max_steps).episode(policy)
+
+
+def cmd_eval(args) -> int:
+    policy = load_any_policy(args.policy)
+    delta = _eval_delta(args, policy)
+    ep = run_policy_episode(policy, delta, args.max_steps)
+    if args.json:
+        print(json.dumps(ep.summary()))
+    else:
+        print(f"{policy.problem.name}: return {ep.ret:.6f}, delta* {ep.delta_star:.6f}, "
+              f"steps {ep.steps}, {'reached' if ep.reached else 'did not reach'} S_delta "
+              f'(delta {delta})')
+    return 0
+
+
+def cmd_exemplars(args) -> int:
+    import numpy as np
+
+    from sapga_ros.exemplar_tools import exemplar_table, plot_exemplars
+    from sapga_ros.policy import ExemplarPolicy, load_policy
+    policy = load_policy(args.policy)
+    delta = _eval_delta(args, policy)
+    ep = run_policy_episode(policy, delta)
+    counts = np.bincount(ep.exemplars, minlength=len(policy))
+    rows = exemplar_table(policy, counts)
+    if args.json:
+        print(json.dumps(rows))
+    else:
+        names = policy.problem.state_names
+        print(f"{'#':>4} {'uses':>5} {'action':>7}  " + ' '.join(f'{n:>11}' for n in names))
+        for r in rows:
+            print(f"{r['index']:>4} {r['uses']:>5} {r['action']:>7g}  "
+                  + ' '.join(f'{v:>11.4f}' for v in r['state']))
+        print(f'{int((counts > 0).sum())} of {len(policy)} exemplars referred to in its '
+              f'episode of {ep.steps} steps')
+    if args.plot:
+        plot_exemplars(policy, ep, counts, args.plot)
+        print(f'plot: {args.plot}', file=sys.stderr)
+    if args.prune_unused:
+        keep = counts > 0
+        pruned = ExemplarPolicy(policy.problem, policy.states[keep], policy.actions[keep],
+                                meta={**policy.meta, 'pruned_from': str(args.policy)})
+        pruned.save(args.prune_unused)
+        print(f'pruned policy ({int(keep.sum())} exemplars): {args.prune_unused}',
+              file=sys.stderr)
+    return 0
+
+
+def cmd_bench(args) -> int:
+    from sapga_ros.bench import run_bench
+    result = run_bench()
+    if args.json:
+        print(json.dumps({k: v for k, v in result.items() if k != 'details'}))
+        return 0
+    for d in result['details']:
+        print(f"{d['problem']:8s} batch: {d['steps_per_s_per_core'] / 1e6:6.3f} M steps/s per "
+              f"core, {d['steps_per_s_all_cores'] / 1e6:6.3f} M steps/s on {d['threads']} "
+              f"threads; NumPy loop: {d['numpy_steps_per_s']:8.0f} steps/s; speedup per core "
+              f"{d['speedup_vs_numpy']:6.0f}x")
+    return 0
+
+
+def cmd_inspect(args) -> int:
+    from sapga_ros.inspect_mcap import run_inspect
+    return run_inspect(args.file, json_out=args.json, plot=args.plot)
+
+
+def cmd_launch(args) -> int:
+    from sapga_ros.launch import run_launch
+    return run_launch(args.name, args.args)
+
+
+COMMANDS = {'train': cmd_train, 'eval': cmd_eval, 'exemplars': cmd_exemplars,
+            'bench': cmd_bench, 'inspect': cmd_inspect, 'launch': cmd_launch}
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return COMMANDS[args.command](args)
+    except SapgaError as exc:
+        print(f'sapga {args.command}: error: {exc}', file=sys.stderr)
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        print(f'sapga {args.command}: interrupted', file=sys.stderr)
+        return 130
+    except BrokenPipeError:
+        return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,118 @@
+"""Policy evaluation (paper section 3, evaluation procedure) on the compiled kernels.
+
+``Evaluator`` packs exemplar policies into padded arrays and runs them in one parallel
+batch; ``Evaluator.episode`` runs one policy with its trajectory recorded.  Fitness is the
+episode's accumulated reward; the evaluation is deterministic.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+
+from sapga_ros.kernels import BLOCKS_PER_THREAD, episode_kernels
+from sapga_ros.policy import ExemplarPolicy
+from sapga_ros.selector import normalize_states
+from sim_nodes.goal import goal_arrays
+from sim_nodes.problem import Problem
+
+
+@dataclass(frozen=True)
+class BatchResult:
+    """Results of a batch evaluation, one entry per policy."""
+
+    returns: np.ndarray     # accumulated reward
+    steps: np.ndarray       # MDP steps simulated
+    delta_star: np.ndarray  # min delta(s) over the states reached
+    reached: np.ndarray     # ended in S_delta
+    used: list              # per policy: bool (L,), exemplars referred to
+
+
+@dataclass(frozen=True)
+class Episode:
+    """One recorded episode."""
+
+    states: np.ndarray      # (steps + 1, D), initial state first
+    actions: np.ndarray     # (steps,) action values
+    exemplars: np.ndarray   # (steps,) index of the exemplar used
+    rewards: np.ndarray     # (steps,)
+    ret: float
+    steps: int
+    delta_star: float
+    reached: bool
+
+    def summary(self) -> dict:
+        return {'return': self.ret, 'delta_star': self.delta_star, 'steps': self.steps,
+                'reached': self.reached}
+
+
+def set_jobs(jobs: int | None) -> int:
+    """Use ``jobs`` threads for batch evaluation (None or 0: every core); return the count."""
+    n = numba.config.NUMBA_NUM_THREADS
+    jobs = n if not jobs or jobs <= 0 else min(jobs, n)
+    numba.set_num_threads(jobs)
+    return jobs
+
+
+class Evaluator:
+    """Evaluates exemplar policies of one problem with goal difficulty ``delta``."""
+
+    def __init__(self, problem: Problem, delta: float | None = None,
+                 n_step: int | None = None) -> None:
+        self.problem = problem
+        self.delta = float(problem.default_delta if delta is None else delta)
+        self.n_step = int(problem.n_step if n_step is None else n_step)
+        self.kernels = episode_kernels(problem.model)
+        self.params = problem.params()
+        self.ranges = problem.ranges
+        self.inv_range = 1.0 / self.ranges
+        self.is_angle = problem.is_angle
+        self.goal = goal_arrays(problem)
+        self.s0 = problem.initial_state
+
+    def _consts(self):
+        return (self.s0, self.params, self.inv_range, self.is_angle, *self.goal, self.delta,
+                self.n_step)
+
+    def pack(self, policies: list[ExemplarPolicy]):
+        """Padded (P, D, Lmax) normalised states, (P, Lmax) action values, (P,) lengths."""
+        lengths = np.array([len(p) for p in policies], dtype=np.int64)
+        lmax = int(lengths.max()) if len(policies) else 1
+        dim = self.problem.dim
+        ex = np.zeros((len(policies), dim, lmax))
+        act = np.zeros((len(policies), lmax))
+        values = self.problem.action_values
+        for k, p in enumerate(policies):
+            ex[k, :, :len(p)] = normalize_states(p.states, self.ranges, self.is_angle)
+            act[k, :len(p)] = values[p.actions]
+        return ex, act, lengths
+
+    def evaluate(self, policies: list[ExemplarPolicy]) -> BatchResult:
+        """Evaluate every policy once (in parallel on the configured threads)."""
+        count = len(policies)
+        ex, act, lengths = self.pack(policies)
+        returns = np.empty(count)
+        steps = np.empty(count, dtype=np.int64)
+        dstar = np.empty(count)
+        reached = np.zeros(count, dtype=np.bool_)
+        used = np.zeros(act.shape, dtype=np.bool_)
+        if count:
+            shares = max(1, min(count, numba.get_num_threads() * BLOCKS_PER_THREAD))
+            self.kernels.evaluate_batch(ex, act, lengths, *self._consts(), shares, returns,
+                                        steps, dstar, reached, used)
+        return BatchResult(returns, steps, dstar, reached,
+                           [used[k, :n].copy() for k, n in enumerate(lengths)])
+
+    def episode(self, policy: ExemplarPolicy) -> Episode:
+        """Run ``policy`` once from the initial state and record the trajectory."""
+        ex, act, lengths = self.pack([policy])
+        used = np.zeros(len(policy), dtype=np.bool_)
+        tr_state = np.zeros((self.n_step + 1, self.problem.dim))
+        tr_idx = np.zeros(self.n_step, dtype=np.int64)
+        tr_reward = np.zeros(self.n_step)
+        ret, steps, dstar, reached = self.kernels.episode(
+            ex[0], act[0], lengths[0], *self._consts(), used, tr_state, tr_idx, tr_reward)
+        idx = tr_idx[:steps].copy()
+        return Episode(tr_state[:steps + 1].copy(), act[0][idx], idx, tr_reward[:steps].copy(),
+                       float(ret), int(steps), float(dstar), bool(reached))

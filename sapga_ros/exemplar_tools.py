@@ -1,0 +1,58 @@
+"""Looking at a policy's exemplars: a table with referral counts, and a picture.
+
+The picture shows, for each (angle, angular velocity) pair of the state, the exemplars as
+markers coloured by action (size by how often the episode referred to them) with the
+episode's trajectory on top: knowledge extraction after optimisation (paper section 2).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from sapga_ros.policy import ExemplarPolicy
+
+
+def exemplar_table(policy: ExemplarPolicy, counts: np.ndarray) -> list[dict]:
+    values = policy.action_values
+    return [{'index': j, 'uses': int(counts[j]), 'action': float(values[j]),
+             'state': [float(x) for x in policy.states[j]]} for j in range(len(policy))]
+
+
+def _pairs(problem) -> list[tuple[int, int]]:
+    """(position, velocity) coordinate pairs that belong to the same joint."""
+    coords = problem.state
+    pairs = []
+    for i, c in enumerate(coords):
+        if c.field == 'position':
+            for j, d in enumerate(coords):
+                if d.field == 'velocity' and d.joint == c.joint:
+                    pairs.append((i, j))
+    return pairs
+
+
+def plot_exemplars(policy: ExemplarPolicy, episode, counts: np.ndarray, out: str) -> None:
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+
+    problem = policy.problem
+    pairs = _pairs(problem)
+    fig, axes = plt.subplots(1, len(pairs), figsize=(4.5 * len(pairs), 4), squeeze=False)
+    values = policy.action_values
+    colours = {a: c for a, c in zip(problem.actions, ('tab:blue', 'tab:grey', 'tab:red'))}
+    for ax, (i, j) in zip(axes[0], pairs):
+        for a in problem.actions:
+            sel = values == a
+            ax.scatter(policy.states[sel, i], policy.states[sel, j],
+                       s=12 + 3 * np.sqrt(counts[sel]), c=colours.get(a, 'k'),
+                       label=f'action {a:g}', alpha=0.8, edgecolors='none')
+        ax.plot(episode.states[:, i], episode.states[:, j], 'k-', lw=0.6, alpha=0.6,
+                label='trajectory')
+        ax.set_xlabel(f'{problem.state[i].name} [{problem.state[i].unit}]')
+        ax.set_ylabel(f'{problem.state[j].name} [{problem.state[j].unit}]')
+        ax.set_xlim(problem.state[i].low, problem.state[i].high)
+    axes[0][0].legend(fontsize=7, loc='upper right')
+    fig.suptitle(f'{problem.name}: {len(policy)} exemplars, return {episode.ret:.1f}, '
+                 f'delta* {episode.delta_star:.4f}')
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    plt.close(fig)

@@ -1,0 +1,347 @@
+"""Tabular Q-learning baseline (paper section 4.3; SPEC 3.4) on the same model kernels.
+
+Square tiling: ``tiles_per_dim`` cells per coordinate over the problem's bounds, on the
+coordinates ``q_learning.state_indices`` of the YAML (the PDIP-single baseline tiles
+(x, v, theta1, theta1_dot): N_tile = 20^4).  epsilon-greedy (greedy ties to the lowest
+action index), learning rate eta, gamma = 1, every episode from the fixed initial state:
+
+    Q(s, a) += eta (r + gamma max_a' Q(s', a') - Q(s, a))     (target r at the goal)
+
+The random stream is a xorshift64* generator whose one-word state is checkpointed, so a
+resumed run is identical.  Measures per episode: return, steps, delta*.  The learnt greedy
+policy is written as a ``sapga-qtable/1`` JSON document (visited cells only), which
+``sapga eval`` runs exactly.
+"""
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from sapga_ros import __version__
+from sapga_ros.checkpoint import load_checkpoint, save_checkpoint
+from sapga_ros.errors import CheckpointError, PolicyFileError
+from sapga_ros.evaluation import Episode
+from sapga_ros.policy import MAX_POLICY_BYTES, _finite, _reject_constant, write_atomic
+from sim_nodes.goal import goal_arrays, goal_delta
+from sim_nodes.jit import kernel
+from sim_nodes.models import model_module
+from sim_nodes.problem import Problem, load_problem
+
+FORMAT = 'sapga-qtable/1'
+CHUNK_STEPS = 1_000_000  # steps between progress reports / checkpoint opportunities
+
+
+@kernel(inline='always')
+def xorshift_uniform(rng):
+    """Uniform [0, 1) from the xorshift64* state rng[0] (uint64), advanced in place."""
+    x = rng[0]
+    x ^= x >> np.uint64(12)
+    x ^= x << np.uint64(25)
+    x ^= x >> np.uint64(27)
+    rng[0] = x
+    return float((x * np.uint64(2685821657736338717)) >> np.uint64(11)) * (1.0 / 9007199254740992.0)
+
+
+@kernel(inline='always')
+def cell_index(s, idx, low, width, tiles):
+    """Index of the tile holding s (coordinates idx); clipped to the edge tiles."""
+    cell = 0
+    mult = 1
+    top = float(tiles - 1)
+    for i in range(idx.shape[0]):
+        c = np.floor((s[idx[i]] - low[i]) / width[i])
+        c = 0.0 if c < 0.0 else (top if c > top else c)
+        cell += int(c) * mult
+        mult *= tiles
+    return cell
+
+
+@kernel(inline='always')
+def greedy(q, cell):
+    best = 0
+    for a in range(1, q.shape[1]):
+        if q[cell, a] > q[cell, best]:
+            best = a
+    return best
+
+
+def make_ql_kernels(model: str):
+    """Compiled learning and greedy-episode loops of ``model``."""
+    mdp_step_lanes = model_module(model).mdp_step_lanes
+
+    @kernel
+    def learn(q, visited, rng, s0, p, actions, idx, low, width, tiles, best, inv_scale,
+              fixed, is_angle, delta, n_step, epsilon, eta, gamma, budget, ep_return,
+              ep_steps, ep_dstar):
+        """Run whole episodes until ``budget`` steps are spent; per-episode measures out.
+
+        Returns (steps simulated, episodes run)."""
+        dim = s0.shape[0]
+        S = np.empty((dim, 1))
+        a_buf = np.zeros(1)
+        r_buf = np.zeros(1)
+        n_act = actions.shape[0]
+        steps = 0
+        episodes = 0
+        while steps < budget and episodes < ep_return.shape[0]:
+            S[:, 0] = s0
+            s = S[:, 0]
+            cell = cell_index(s, idx, low, width, tiles)
+            total = 0.0
+            dstar = goal_delta(s, best, inv_scale, fixed, is_angle)
+            t = 0
+            while t < n_step:
+                if xorshift_uniform(rng) < epsilon:
+                    a = min(int(xorshift_uniform(rng) * n_act), n_act - 1)
+                else:
+                    a = greedy(q, cell)
+                a_buf[0] = actions[a]
+                mdp_step_lanes(S, a_buf, p, 1, r_buf)
+                r = r_buf[0]
+                total += r
+                t += 1
+                d = goal_delta(s, best, inv_scale, fixed, is_angle)
+                if d < dstar:
+                    dstar = d
+                nxt = cell_index(s, idx, low, width, tiles)
+                target = r
+                if d > delta:                      # not terminal: bootstrap
+                    target += gamma * q[nxt, greedy(q, nxt)]
+                q[cell, a] += eta * (target - q[cell, a])
+                visited[cell] = True
+                cell = nxt
+                if d <= delta:
+                    break
+            ep_return[episodes] = total
+            ep_steps[episodes] = t
+            ep_dstar[episodes] = dstar
+            episodes += 1
+            steps += t
+        return steps, episodes
+
+    @kernel
+    def greedy_episode(q, s0, p, actions, idx, low, width, tiles, best, inv_scale, fixed,
+                       is_angle, delta, n_step, tr_state, tr_cell, tr_reward):
+        dim = s0.shape[0]
+        S = np.empty((dim, 1))
+        S[:, 0] = s0
+        s = S[:, 0]
+        a_buf = np.zeros(1)
+        r_buf = np.zeros(1)
+        tr_state[0, :] = s
+        total = 0.0
+        dstar = goal_delta(s, best, inv_scale, fixed, is_angle)
+        t = 0
+        reached = False
+        while t < n_step:
+            cell = cell_index(s, idx, low, width, tiles)
+            a = greedy(q, cell)
+            a_buf[0] = actions[a]
+            mdp_step_lanes(S, a_buf, p, 1, r_buf)
+            total += r_buf[0]
+            tr_cell[t] = a
+            tr_reward[t] = r_buf[0]
+            t += 1
+            tr_state[t, :] = s
+            d = goal_delta(s, best, inv_scale, fixed, is_angle)
+            if d < dstar:
+                dstar = d
+            if d <= delta:
+                reached = True
+                break
+        return total, t, dstar, reached
+
+    return learn, greedy_episode
+
+
+_KERNELS: dict = {}
+
+
+def ql_kernels(model: str):
+    if model not in _KERNELS:
+        _KERNELS[model] = make_ql_kernels(model)
+    return _KERNELS[model]
+
+
+@dataclass
+class QTable:
+    """A learnt Q-table over the square tiling of a problem."""
+
+    problem: Problem
+    q: np.ndarray                  # (tiles^D', n_actions)
+    visited: np.ndarray            # (tiles^D',) bool
+    meta: dict
+
+    @property
+    def tiling(self):
+        pr = self.problem
+        idx = np.array(pr.ql_state_indices, dtype=np.int64)
+        low = pr.low[idx]
+        width = (pr.high[idx] - low) / pr.ql_tiles_per_dim
+        return idx, low, width, pr.ql_tiles_per_dim
+
+    def episode(self, delta: float, n_step: int | None = None) -> Episode:
+        """The greedy policy's episode from the initial state."""
+        pr = self.problem
+        n_step = pr.n_step if n_step is None else n_step
+        _, greedy_episode = ql_kernels(pr.model)
+        tr_state = np.zeros((n_step + 1, pr.dim))
+        tr_a = np.zeros(n_step, dtype=np.int64)
+        tr_r = np.zeros(n_step)
+        ret, steps, dstar, reached = greedy_episode(
+            self.q, pr.initial_state, pr.params(), pr.action_values, *self.tiling,
+            *goal_arrays(pr), pr.is_angle, delta, n_step, tr_state, tr_a, tr_r)
+        a = tr_a[:steps]
+        return Episode(tr_state[:steps + 1].copy(), pr.action_values[a], np.full(steps, -1),
+                       tr_r[:steps].copy(), float(ret), int(steps), float(dstar), bool(reached))
+
+    def to_json(self) -> str:
+        pr = self.problem
+        cells = np.flatnonzero(self.visited)
+        doc = {'format': FORMAT, 'problem': pr.name, 'state_names': list(pr.state_names),
+               'actions': list(pr.actions), 'state_indices': list(pr.ql_state_indices),
+               'tiles_per_dim': pr.ql_tiles_per_dim, 'meta': self.meta}
+        head = json.dumps(doc, indent=1, allow_nan=False)[:-2]
+        rows = ',\n  '.join(f'"{c}": ' + json.dumps([float(v) for v in self.q[c]])
+                            for c in cells)
+        return head + ',\n "q": {\n  ' + rows + '\n }\n}\n'
+
+    def save(self, path) -> Path:
+        path = Path(path)
+        write_atomic(path, self.to_json())
+        return path
+
+
+def qtable_from_document(doc: dict, source: str) -> QTable:
+    """Validate a parsed ``sapga-qtable/1`` document."""
+    for key in ('problem', 'state_names', 'actions', 'state_indices', 'tiles_per_dim', 'q'):
+        if key not in doc:
+            raise PolicyFileError(f'{source}: missing field {key!r}')
+    try:
+        pr = load_problem(doc['problem'])
+    except Exception as exc:  # noqa: BLE001 - reported as a policy file error
+        raise PolicyFileError(f'{source}: problem: {exc}') from exc
+    if doc['state_names'] != list(pr.state_names):
+        raise PolicyFileError(f'{source}: state_names: expected {list(pr.state_names)}')
+    if [_finite(a, f'{source}: actions') for a in doc['actions']] != list(pr.actions):
+        raise PolicyFileError(f'{source}: actions: expected {list(pr.actions)}')
+    if doc['state_indices'] != list(pr.ql_state_indices) or \
+            doc['tiles_per_dim'] != pr.ql_tiles_per_dim:
+        raise PolicyFileError(f'{source}: tiling differs from {pr.name}\'s configuration')
+    cells = pr.ql_tiles_per_dim ** len(pr.ql_state_indices)
+    q = np.zeros((cells, len(pr.actions)))
+    visited = np.zeros(cells, dtype=np.bool_)
+    if not isinstance(doc['q'], dict):
+        raise PolicyFileError(f'{source}: q: expected an object of cell: [values]')
+    for key, values in doc['q'].items():
+        if not key.isdigit() or int(key) >= cells:
+            raise PolicyFileError(f'{source}: q: cell {key!r} is not in 0..{cells - 1}')
+        if not isinstance(values, list) or len(values) != len(pr.actions):
+            raise PolicyFileError(f'{source}: q[{key}]: expected {len(pr.actions)} numbers')
+        q[int(key)] = [_finite(v, f'{source}: q[{key}]') for v in values]
+        visited[int(key)] = True
+    meta = doc.get('meta', {})
+    return QTable(pr, q, visited, meta if isinstance(meta, dict) else {})
+
+
+def parse_json(data: bytes, source: str):
+    """Parse a JSON document refusing NaN/Infinity and oversized input."""
+    if len(data) > MAX_POLICY_BYTES:
+        raise PolicyFileError(f'{source}: larger than the '
+                              f'{MAX_POLICY_BYTES // (1024 * 1024)} MB limit')
+    try:
+        return json.loads(data.decode('utf-8'), parse_constant=_reject_constant)
+    except UnicodeDecodeError as exc:
+        raise PolicyFileError(f'{source}: not UTF-8 text (byte {exc.start})') from exc
+    except json.JSONDecodeError as exc:
+        raise PolicyFileError(f'{source}: malformed JSON ({exc.msg} at line {exc.lineno} '
+                              f'column {exc.colno})') from exc
+    except (ValueError, RecursionError) as exc:
+        raise PolicyFileError(f'{source}: {exc}') from exc
+
+
+def train_ql(config, progress=None) -> 'object':
+    """Run the Q-learning baseline as configured (a ``TrainConfig``)."""
+    from sapga_ros.train import TrainResult
+    pr = load_problem(config.problem)
+    delta = float(pr.default_delta if config.delta is None else config.delta)
+    learn, _ = ql_kernels(pr.model)
+    cells = pr.ql_tiles_per_dim ** len(pr.ql_state_indices)
+    settings = {'problem': pr.name, 'method': 'ql', 'delta': delta, 'seed': config.seed,
+                'epsilon': pr.ql_epsilon, 'eta': pr.ql_eta}
+    if config.resume:
+        if not config.checkpoint:
+            raise CheckpointError('--resume needs --checkpoint DIR')
+        meta, arrays = load_checkpoint(config.checkpoint)
+        if meta.get('run') != settings:
+            raise CheckpointError(f'{config.checkpoint}: checkpoint is of another run '
+                                  f'({meta.get("run")}), not {settings}')
+        try:
+            q, visited, rng = arrays['q'], arrays['visited'], arrays['rng']
+            steps, episodes = int(meta['steps']), int(meta['episodes'])
+            best_value, dstar = float(meta['best_value']), float(meta['delta_star'])
+        except (KeyError, ValueError) as exc:
+            raise CheckpointError(f'{config.checkpoint}: malformed run state ({exc})') from exc
+        if q.shape != (cells, len(pr.actions)):
+            raise CheckpointError(f'{config.checkpoint}: Q-table shape {q.shape}')
+        history = list(meta.get('history', []))
+    else:
+        q = np.zeros((cells, len(pr.actions)))
+        visited = np.zeros(cells, dtype=np.bool_)
+        # splitmix64 of the seed: a non-zero xorshift state
+        z = (config.seed + 0x9E3779B97F4A7C15) & 0xFFFFFFFFFFFFFFFF
+        z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & 0xFFFFFFFFFFFFFFFF
+        z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & 0xFFFFFFFFFFFFFFFF
+        rng = np.array([(z ^ (z >> 31)) or 1], dtype=np.uint64)
+        steps = episodes = 0
+        best_value, dstar = -math.inf, math.inf
+        history = []
+    idx = np.array(pr.ql_state_indices, dtype=np.int64)
+    low = pr.low[idx]
+    width = (pr.high[idx] - low) / pr.ql_tiles_per_dim
+    consts = (pr.initial_state, pr.params(), pr.action_values, idx, low, width,
+              pr.ql_tiles_per_dim, *goal_arrays(pr), pr.is_angle, delta, pr.n_step,
+              pr.ql_epsilon, pr.ql_eta, 1.0)
+    max_eps = CHUNK_STEPS  # an episode has at least one step
+    ep_r, ep_s, ep_d = np.empty(max_eps), np.empty(max_eps, np.int64), np.empty(max_eps)
+    start = time.perf_counter()
+    steps_at_start = steps
+    chunks = 0
+    while steps < config.steps:
+        budget = min(CHUNK_STEPS, config.steps - steps)
+        done, n_ep = learn(q, visited, rng, *consts, budget, ep_r, ep_s, ep_d)
+        steps += int(done)
+        episodes += int(n_ep)
+        if n_ep:
+            best_value = max(best_value, float(ep_r[:n_ep].max()))
+            dstar = min(dstar, float(ep_d[:n_ep].min()))
+        elapsed = time.perf_counter() - start
+        row = {'episodes': episodes, 'steps': steps, 'best_value': best_value,
+               'delta_star': dstar, 'achieved': dstar <= delta,
+               'steps_per_s': (steps - steps_at_start) / max(elapsed, 1e-9)}
+        history.append(row)
+        if progress:
+            progress(row)
+        chunks += 1
+        if config.checkpoint and (chunks % 10 == 0 or steps >= config.steps):
+            save_checkpoint(config.checkpoint,
+                            {'run': settings, 'steps': steps, 'episodes': episodes,
+                             'best_value': best_value, 'delta_star': dstar,
+                             'history': history},
+                            {'q': q, 'visited': visited, 'rng': rng})
+    table = QTable(pr, q, visited, {})
+    greedy_ep = table.episode(delta)
+    table.meta = {'value': greedy_ep.ret, 'delta_star': greedy_ep.delta_star,
+                  'steps_to_end': greedy_ep.steps, 'reached': greedy_ep.reached,
+                  'best_training_value': best_value, 'run_delta_star': dstar, 'delta': delta,
+                  'seed': config.seed, 'steps': steps, 'episodes': episodes, 'method': 'ql',
+                  'epsilon': pr.ql_epsilon, 'eta': pr.ql_eta, 'gamma': 1.0,
+                  'software': f'sapga_ros {__version__}',
+                  'time': time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime())}
+    return TrainResult(table, history, {'steps': steps, 'episodes': episodes,
+                                        'best_value': best_value, 'delta_star': dstar})

@@ -1,0 +1,159 @@
+"""SAP-GA: exemplar-based policy search with a genetic algorithm (paper section 3; SPEC 3.2).
+
+The optimizer speaks ask/tell (as pycma and evosax do): ``ask()`` pairs the population at
+random into families, makes N_child children per family by uniform exemplar crossover, and
+returns every family member without a known value; the caller evaluates them (all
+families of a generation in one parallel batch: families are disjoint, so this equals
+processing them one by one) and hands the results to ``tell()``, which keeps each family's
+best member pi* in one parent's place and a refreshed clone of pi* in the other's.
+
+Fixed strategy parameters live in ``SapgaParams``; the changing state (population, values,
+generator, counters) is what a checkpoint saves (``state_dict`` / ``from_state``).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from sapga_ros.evaluation import BatchResult
+from sapga_ros.operators import random_policy, refresh, uniform_crossover
+from sapga_ros.policy import ExemplarPolicy
+from sim_nodes.problem import Problem
+
+
+@dataclass(frozen=True)
+class SapgaParams:
+    """SAP-GA strategy parameters (paper 4.3 defaults)."""
+
+    n_pop: int = 100                       # N_pop, policies in the population
+    n_child: int = 10                      # N_child, children per family
+    l_min: int = 50                        # L_min, fewest exemplars in a policy
+    l_max: int = 100                       # L_max, most exemplars in a policy
+    crossover_rate: tuple = (0.3, 0.7)     # range of r in uniform exemplar crossover
+    refresh_rate: tuple = (0.0, 0.5)       # range of r in the refresh operator
+    max_tries: int = 100                   # crossover attempts before a child is repaired
+
+    def __post_init__(self) -> None:
+        if self.n_pop < 2 or self.n_child < 1 or not 1 <= self.l_min <= self.l_max:
+            raise ValueError(f'invalid SAP-GA parameters: {self}')
+
+
+@dataclass
+class Individual:
+    """A policy and what its last evaluation found (value nan: not evaluated yet)."""
+
+    policy: ExemplarPolicy
+    value: float = math.nan                # f(pi): accumulated reward of its episode
+    delta_star: float = math.inf
+    steps: int = 0                         # MDP steps of its episode
+    reached: bool = False
+    used: np.ndarray | None = None         # exemplars referred to in that episode
+
+    @property
+    def known(self) -> bool:
+        return not math.isnan(self.value)
+
+
+@dataclass
+class Stats:
+    """Counters of a run."""
+
+    generation: int = 0
+    steps: int = 0                         # MDP steps simulated (the paper's total steps)
+    evaluations: int = 0
+    repairs: int = 0                       # children repaired after max_tries (SPEC 3.2)
+    refreshed: int = 0                     # exemplars re-drawn by the refresh operator
+    best_value: float = -math.inf          # best evaluated value so far
+    delta_star: float = math.inf           # min delta(s) over every state reached so far
+
+
+@dataclass
+class SapGA:
+    """The SAP-GA optimizer for one problem."""
+
+    problem: Problem
+    params: SapgaParams
+    rng: np.random.Generator
+    population: list[Individual]
+    stats: Stats = field(default_factory=Stats)
+    best: Individual | None = None
+    _families: list | None = None
+    _pending: list | None = None
+
+    @classmethod
+    def create(cls, problem: Problem, params: SapgaParams, seed: int,
+               initial: list[ExemplarPolicy] = ()) -> 'SapGA':
+        """A random initial population; ``initial`` policies (prior knowledge) replace the
+        first members."""
+        rng = np.random.default_rng(seed)
+        pop = [Individual(random_policy(problem, rng, params.l_min, params.l_max))
+               for _ in range(params.n_pop)]
+        for i, policy in enumerate(list(initial)[:params.n_pop]):
+            if policy.problem.name != problem.name:
+                raise ValueError(f'initial policy {i} is for {policy.problem.name}, '
+                                 f'not {problem.name}')
+            pop[i] = Individual(ExemplarPolicy(problem, policy.states, policy.actions))
+        return cls(problem, params, rng, pop)
+
+    def ask(self) -> list[ExemplarPolicy]:
+        """Form this generation's families; return the members that need an evaluation."""
+        if self._families is not None:
+            raise RuntimeError('ask() called twice without tell()')
+        p = self.params
+        order = self.rng.permutation(p.n_pop)                     # random couples
+        families = []
+        pending = []
+        for f in range(p.n_pop // 2):
+            i, j = int(order[2 * f]), int(order[2 * f + 1])
+            members = [self.population[i], self.population[j]]
+            for _ in range(p.n_child):
+                child, repaired = uniform_crossover(
+                    members[0].policy, members[1].policy, self.rng, p.l_min, p.l_max,
+                    p.crossover_rate, p.max_tries)
+                self.stats.repairs += repaired
+                members.append(Individual(child))
+            pending.extend(m for m in members if not m.known)
+            families.append((i, j, members))
+        self._families, self._pending = families, pending
+        return [m.policy for m in pending]
+
+    def tell(self, result: BatchResult) -> None:
+        """Take the evaluations of ``ask()``'s policies, in order; replace the parents."""
+        if self._families is None or len(result.returns) != len(self._pending):
+            raise RuntimeError('tell() needs the results of the last ask(), in order')
+        st = self.stats
+        for k, m in enumerate(self._pending):
+            value = float(result.returns[k])
+            m.value = value if math.isfinite(value) else -math.inf  # NaN ranks worst
+            m.delta_star = float(result.delta_star[k])
+            m.steps = int(result.steps[k])
+            m.reached = bool(result.reached[k])
+            m.used = result.used[k]
+            st.steps += m.steps
+            st.evaluations += 1
+            st.delta_star = min(st.delta_star, m.delta_star)
+            if self.best is None or m.value > self.best.value:
+                self.best = m
+                st.best_value = m.value
+        for i, j, members in self._families:
+            star = max(members, key=lambda m: m.value)            # pi*, first of equals
+            clone, count = refresh(star.policy, star.used, self.rng, self.params.refresh_rate)
+            st.refreshed += count
+            twin = Individual(clone)
+            if count == 0:                                        # unchanged: value known
+                twin = Individual(clone, star.value, star.delta_star, star.steps,
+                                  star.reached, star.used)
+            self.population[i] = star
+            self.population[j] = twin
+        st.generation += 1
+        self._families = self._pending = None
+
+    def stop(self, budget: int) -> dict:
+        """Termination reasons met (empty: go on)."""
+        return {'budget': budget} if self.stats.steps >= budget else {}
+
+    @property
+    def params_dict(self) -> dict:
+        return asdict(self.params)

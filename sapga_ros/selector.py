@@ -1,0 +1,76 @@
+"""Nearest-neighbour action selector of the state-action style (paper section 3, SPEC 3.1).
+
+Distance: normalised Euclidean.  Each coordinate is divided by its range (2pi for angles,
+8pi / 18pi for the acrobot's velocities, 5 for x, 32 for v, 8pi for the PDIP's
+theta_dot), so an angle becomes a fraction of a turn in [0, 1) and its difference is taken
+the short way round the circle.  Ties go to the lowest index (strict ``<``).
+
+Exemplar states are stored normalised and dimension-major, ``(D, L)``, so the distance loop
+runs over exemplars innermost and vectorises.  The same compiled ``nearest`` serves the
+batch evaluator and the ROS policy node, which is what makes a lockstep ROS episode equal
+an offline evaluation bit for bit.
+"""
+import math
+
+import numpy as np
+from sim_nodes.jit import kernel
+
+
+@kernel
+def normalize_into(s, inv_range, is_angle, out):
+    """out = s / range, angles wrapped to a fraction of a turn in [0, 1)."""
+    for d in range(s.shape[0]):
+        u = s[d] * inv_range[d]
+        if is_angle[d]:
+            u = u - math.floor(u)
+            if u >= 1.0:
+                u = 0.0
+        out[d] = u
+
+
+@kernel
+def nearest(u, ex, n, is_angle, acc):
+    """Index of the exemplar nearest to the normalised state u among ex[:, :n].
+
+    ``acc`` is scratch of length >= n (squared distances).
+    """
+    for j in range(n):
+        acc[j] = 0.0
+    for d in range(u.shape[0]):
+        ud = u[d]
+        row = ex[d]
+        if is_angle[d]:
+            for j in range(n):
+                diff = math.fabs(ud - row[j])
+                diff = min(diff, 1.0 - diff)  # circular: short way round
+                acc[j] += diff * diff
+        else:
+            for j in range(n):
+                diff = ud - row[j]
+                acc[j] += diff * diff
+    best = 0
+    best_d = acc[0]
+    for j in range(1, n):
+        if acc[j] < best_d:  # strict: ties keep the lowest index
+            best_d = acc[j]
+            best = j
+    return best
+
+
+def normalize_states(states: np.ndarray, ranges: np.ndarray, is_angle: np.ndarray) -> np.ndarray:
+    """(L, D) raw exemplar states -> (D, L) normalised, as ``nearest`` takes them."""
+    out = np.empty((states.shape[1], states.shape[0]), dtype=np.float64)
+    inv = 1.0 / ranges
+    for j in range(states.shape[0]):
+        normalize_into(states[j], inv, is_angle, out[:, j])
+    return out
+
+
+def distances(state, states, ranges, is_angle) -> np.ndarray:
+    """Normalised distances from one raw state to each raw exemplar state (for people)."""
+    u = np.empty(len(ranges))
+    normalize_into(np.asarray(state, dtype=np.float64), 1.0 / ranges, is_angle, u)
+    ex = normalize_states(np.asarray(states, dtype=np.float64), ranges, is_angle)
+    diff = np.abs(ex - u[:, None])
+    diff[is_angle] = np.minimum(diff[is_angle], 1.0 - diff[is_angle])
+    return np.sqrt((diff ** 2).sum(axis=0))

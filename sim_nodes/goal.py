@@ -1,0 +1,46 @@
+"""Goal area S_delta and delta(s) (SPEC 2), shared by every model.
+
+``delta(s)`` is the smallest delta with s in S_delta: the largest of the scaled deviations
+|s_i - best_i| / scale_i (circular on angles), or infinity when a coordinate with a fixed
+bound (the PDIP's |x| <= 2) is outside it.  A run achieves delta when delta* <= delta.
+"""
+import math
+
+import numpy as np
+from sim_nodes.jit import kernel
+
+from sim_nodes.models.common import TWO_PI
+
+
+@kernel
+def circular_diff(a: float, b: float) -> float:
+    """|a - b|_c: the shortest way round the circle [rad], in [0, pi]."""
+    d = math.fabs(a - b) % TWO_PI
+    return TWO_PI - d if d > math.pi else d
+
+
+@kernel
+def goal_delta(s, best, inv_scale, fixed, is_angle):
+    """delta(s); inv_scale is 1/scale (0 where the coordinate has a fixed bound)."""
+    worst = 0.0
+    for i in range(s.shape[0]):
+        d = circular_diff(s[i], best[i]) if is_angle[i] else math.fabs(s[i] - best[i])
+        if d > fixed[i]:
+            return math.inf
+        d *= inv_scale[i]
+        if d > worst:
+            worst = d
+    return worst
+
+
+def goal_arrays(problem):
+    """(best, inv_scale, fixed) of a Problem, as the kernels take them."""
+    scale = np.array(problem.goal_scale, dtype=np.float64)
+    inv_scale = np.where(np.isnan(scale), 0.0, 1.0 / np.where(np.isnan(scale), 1.0, scale))
+    return problem.best_state, inv_scale, np.array(problem.goal_fixed, dtype=np.float64)
+
+
+def delta_of(problem, s) -> float:
+    """delta(s) of one state (a convenience around ``goal_delta``)."""
+    return float(goal_delta(np.asarray(s, dtype=np.float64), *goal_arrays(problem),
+                            problem.is_angle))

@@ -1,0 +1,283 @@
+"""Problem configuration: msg_configs/<name>.yaml parsed into a frozen ``Problem``.
+
+One YAML file per problem is the single source of truth (SPEC 1): state layout, ROS
+interface, physical parameters, action set, bounds, goal area and episode settings.  YAML
+is read with ``yaml.safe_load``; numbers may be written as multiples of pi ('3pi/2') and are
+parsed by a regular expression, never evaluated.
+"""
+from __future__ import annotations
+
+import math
+import os
+import re
+from dataclasses import dataclass, field
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from sapga_ros.errors import ConfigError, UnknownProblemError
+
+CONFIG_ENV = 'SAPGA_CONFIG_DIR'
+_PI_RE = re.compile(r'^\s*([+-]?)\s*(\d+(?:\.\d*)?|\.\d+)?\s*\*?\s*pi\s*(?:/\s*(\d+(?:\.\d*)?))?\s*$')
+_NAME_RE = re.compile(r'^[a-z][a-z0-9_]*$')
+MAX_CONFIG_BYTES = 1 << 20
+
+
+def config_dir() -> Path:
+    """Where problem YAML files live: $SAPGA_CONFIG_DIR, the source tree, or the install."""
+    env = os.environ.get(CONFIG_ENV)
+    if env:
+        return Path(env)
+    source = Path(__file__).resolve().parents[1] / 'msg_configs'
+    if source.is_dir():
+        return source
+    import sys
+    installed = Path(sys.prefix) / 'share' / 'sapga_ros' / 'msg_configs'
+    if installed.is_dir():
+        return installed
+    try:
+        from ament_index_python.packages import get_package_share_directory
+        return Path(get_package_share_directory('sapga_ros')) / 'msg_configs'
+    except Exception:  # noqa: BLE001 - any failure means: not installed as a ROS package
+        return source
+
+
+def parse_number(value: Any, where: str) -> float:
+    """A finite float from a YAML scalar: a number or a multiple of pi such as '-3pi/2'."""
+    if isinstance(value, bool) or value is None:
+        raise ConfigError(f'{where}: expected a number, got {value!r}')
+    if isinstance(value, (int, float)):
+        number = float(value)
+    elif isinstance(value, str):
+        m = _PI_RE.match(value)
+        if not m:
+            raise ConfigError(f'{where}: expected a number or a multiple of pi, got {value!r}')
+        sign, coef, denom = m.groups()
+        number = (float(coef) if coef else 1.0) * math.pi / (float(denom) if denom else 1.0)
+        number = -number if sign == '-' else number
+    else:
+        raise ConfigError(f'{where}: expected a number, got {type(value).__name__}')
+    if not math.isfinite(number):
+        raise ConfigError(f'{where}: not a finite number ({value!r})')
+    return number
+
+
+@dataclass(frozen=True)
+class StateCoord:
+    """One coordinate of the state vector."""
+
+    name: str            # e.g. 'theta1'
+    unit: str            # e.g. 'rad'
+    angle: bool          # wrapped to [0, 2pi), compared on the circle
+    range: float         # divisor of differences in the normalised distance
+    low: float           # lower bound of random exemplar states and Q-learning tiles
+    high: float          # upper bound
+    joint: str           # JointState joint carrying it
+    field: str           # 'position' or 'velocity'
+
+
+@dataclass(frozen=True)
+class Problem:
+    """A problem as configured in msg_configs/<name>.yaml (see that file for units)."""
+
+    name: str
+    model: str
+    description: str
+    state: tuple[StateCoord, ...]
+    initial: tuple[float, ...]
+    best: tuple[float, ...]
+    actions: tuple[float, ...]
+    actuator_joint: str
+    physics: dict[str, float]
+    dt: float                                   # integration substep [s]
+    substeps: int                               # substeps per MDP step
+    n_step: int                                 # N_step
+    default_delta: float
+    goal_scale: tuple[float, ...]               # nan where the coordinate has a fixed bound
+    goal_fixed: tuple[float, ...]               # inf where the coordinate is scaled by delta
+    ql_state_indices: tuple[int, ...]
+    ql_tiles_per_dim: int
+    ql_epsilon: float
+    ql_eta: float
+    ros: dict[str, Any] = field(default_factory=dict, compare=False)
+    source: str = ''
+
+    @property
+    def dim(self) -> int:
+        """D, the state dimension."""
+        return len(self.state)
+
+    @property
+    def state_names(self) -> tuple[str, ...]:
+        return tuple(c.name for c in self.state)
+
+    @property
+    def is_angle(self) -> np.ndarray:
+        return np.array([c.angle for c in self.state], dtype=np.bool_)
+
+    @property
+    def ranges(self) -> np.ndarray:
+        return np.array([c.range for c in self.state], dtype=np.float64)
+
+    @property
+    def low(self) -> np.ndarray:
+        return np.array([c.low for c in self.state], dtype=np.float64)
+
+    @property
+    def high(self) -> np.ndarray:
+        return np.array([c.high for c in self.state], dtype=np.float64)
+
+    @property
+    def initial_state(self) -> np.ndarray:
+        return np.array(self.initial, dtype=np.float64)
+
+    @property
+    def best_state(self) -> np.ndarray:
+        return np.array(self.best, dtype=np.float64)
+
+    @property
+    def action_values(self) -> np.ndarray:
+        return np.array(self.actions, dtype=np.float64)
+
+    @property
+    def joints(self) -> tuple[str, ...]:
+        return tuple(self.ros.get('joints', ()))
+
+    def params(self) -> np.ndarray:
+        """The model kernel's parameter vector (sim_nodes.models.<model>.pack_params)."""
+        from sim_nodes.models import model_module
+        return model_module(self.model).pack_params(self)
+
+
+def _require(doc: dict, key: str, where: str) -> Any:
+    if key not in doc:
+        raise ConfigError(f'{where}: missing field {key!r}')
+    return doc[key]
+
+
+def _numbers(values: Any, where: str, length: int | None = None) -> tuple[float, ...]:
+    if not isinstance(values, list):
+        raise ConfigError(f'{where}: expected a list of numbers')
+    if length is not None and len(values) != length:
+        raise ConfigError(f'{where}: expected {length} numbers, got {len(values)}')
+    return tuple(parse_number(v, f'{where}[{i}]') for i, v in enumerate(values))
+
+
+def _optional_numbers(values: Any, where: str, length: int, missing: float) -> tuple[float, ...]:
+    if values is None:
+        return (missing,) * length
+    if not isinstance(values, list) or len(values) != length:
+        raise ConfigError(f'{where}: expected a list of {length} numbers or nulls')
+    return tuple(missing if v is None else parse_number(v, f'{where}[{i}]')
+                 for i, v in enumerate(values))
+
+
+def parse_problem(doc: Any, source: str) -> Problem:
+    """Validate a parsed YAML document and build the ``Problem``."""
+    if not isinstance(doc, dict):
+        raise ConfigError(f'{source}: expected a mapping at the top level')
+    name = _require(doc, 'name', source)
+    if not isinstance(name, str) or not _NAME_RE.match(name):
+        raise ConfigError(f'{source}: name: expected a lower-case identifier, got {name!r}')
+    state_doc = _require(doc, 'state', source)
+    if not isinstance(state_doc, list) or not state_doc:
+        raise ConfigError(f'{source}: state: expected a non-empty list of coordinates')
+    coords = []
+    for i, c in enumerate(state_doc):
+        where = f'{source}: state[{i}]'
+        if not isinstance(c, dict):
+            raise ConfigError(f'{where}: expected a mapping')
+        coord = StateCoord(
+            name=str(_require(c, 'name', where)), unit=str(c.get('unit', '')),
+            angle=bool(c.get('angle', False)),
+            range=parse_number(_require(c, 'range', where), f'{where}.range'),
+            low=parse_number(_require(c, 'low', where), f'{where}.low'),
+            high=parse_number(_require(c, 'high', where), f'{where}.high'),
+            joint=str(_require(c, 'joint', where)), field=str(_require(c, 'field', where)))
+        if coord.range <= 0 or coord.high <= coord.low:
+            raise ConfigError(f'{where}: needs range > 0 and high > low')
+        if coord.field not in ('position', 'velocity'):
+            raise ConfigError(f'{where}.field: expected position or velocity, got {coord.field!r}')
+        coords.append(coord)
+    dim = len(coords)
+    actions = _numbers(_require(doc, 'actions', source), f'{source}: actions')
+    if not actions or len(set(actions)) != len(actions):
+        raise ConfigError(f'{source}: actions: expected distinct numbers')
+    physics_doc = _require(doc, 'physics', source)
+    if not isinstance(physics_doc, dict):
+        raise ConfigError(f'{source}: physics: expected a mapping')
+    physics = {str(k): parse_number(v, f'{source}: physics.{k}') for k, v in physics_doc.items()}
+    episode = _require(doc, 'episode', source)
+    goal = _require(doc, 'goal', source)
+    ql = doc.get('q_learning') or {}
+    ros = doc.get('ros') or {}
+    actuator = doc.get('actuator') or {}
+    goal_scale = _optional_numbers(goal.get('scale'), f'{source}: goal.scale', dim, math.nan)
+    goal_fixed = _optional_numbers(goal.get('fixed'), f'{source}: goal.fixed', dim, math.inf)
+    for i, (s, f) in enumerate(zip(goal_scale, goal_fixed)):
+        if math.isnan(s) == math.isinf(f):
+            raise ConfigError(f'{source}: goal: coordinate {i} needs exactly one of scale, fixed')
+    substeps = int(parse_number(_require(episode, 'substeps', f'{source}: episode'),
+                                f'{source}: episode.substeps'))
+    n_step = int(parse_number(_require(episode, 'n_step', f'{source}: episode'),
+                              f'{source}: episode.n_step'))
+    indices = tuple(int(i) for i in ql.get('state_indices', range(dim)))
+    if any(i < 0 or i >= dim for i in indices):
+        raise ConfigError(f'{source}: q_learning.state_indices: out of range 0..{dim - 1}')
+    problem = Problem(
+        name=name, model=str(_require(doc, 'model', source)),
+        description=str(doc.get('description', '')), state=tuple(coords),
+        initial=_numbers(_require(doc, 'initial', source), f'{source}: initial', dim),
+        best=_numbers(_require(doc, 'best', source), f'{source}: best', dim),
+        actions=actions, actuator_joint=str(actuator.get('joint', '')), physics=physics,
+        dt=parse_number(_require(episode, 'dt', f'{source}: episode'), f'{source}: episode.dt'),
+        substeps=substeps, n_step=n_step,
+        default_delta=parse_number(episode.get('delta', 0.05), f'{source}: episode.delta'),
+        goal_scale=goal_scale, goal_fixed=goal_fixed, ql_state_indices=indices,
+        ql_tiles_per_dim=int(ql.get('tiles_per_dim', 20)),
+        ql_epsilon=parse_number(ql.get('epsilon', 0.02), f'{source}: q_learning.epsilon'),
+        ql_eta=parse_number(ql.get('eta', 0.02), f'{source}: q_learning.eta'),
+        ros=ros, source=source)
+    if problem.dt <= 0 or substeps < 1 or n_step < 1:
+        raise ConfigError(f'{source}: episode: needs dt > 0, substeps >= 1, n_step >= 1')
+    problem.params()  # the model checks its own physics parameters
+    return problem
+
+
+def load_problem_file(path: str | os.PathLike) -> Problem:
+    """Parse one problem YAML file."""
+    path = Path(path)
+    try:
+        size = path.stat().st_size
+        if size > MAX_CONFIG_BYTES:
+            raise ConfigError(f'{path}: {size} bytes, larger than the {MAX_CONFIG_BYTES} limit')
+        text = path.read_text(encoding='utf-8')
+    except OSError as exc:
+        raise ConfigError(f'{path}: cannot read ({exc.strerror})') from exc
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f'{path}: not UTF-8 text') from exc
+    try:
+        doc = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ConfigError(f'{path}: malformed YAML ({str(exc).splitlines()[0]})') from exc
+    return parse_problem(doc, str(path))
+
+
+def problem_names() -> list[str]:
+    """Names of every configured problem."""
+    return sorted(p.stem for p in config_dir().glob('*.yaml') if _NAME_RE.match(p.stem))
+
+
+@lru_cache(maxsize=None)
+def load_problem(name: str) -> Problem:
+    """The configured problem called ``name``; UnknownProblemError lists the known ones."""
+    if not isinstance(name, str) or not _NAME_RE.match(name) or name not in problem_names():
+        known = ', '.join(problem_names())
+        raise UnknownProblemError(f'unknown problem {name!r} (known: {known})')
+    problem = load_problem_file(config_dir() / f'{name}.yaml')
+    if problem.name != name:
+        raise ConfigError(f'{problem.source}: name {problem.name!r} does not match the file name')
+    return problem
