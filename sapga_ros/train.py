@@ -8,7 +8,6 @@
 """
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import asdict, dataclass, field
 from typing import Callable
@@ -135,8 +134,15 @@ def json_roundtrip(obj):
 
 
 def train_sapga(config: TrainConfig, initial: list[ExemplarPolicy] = (),
-                progress: Progress | None = None) -> TrainResult:
-    """Run SAP-GA as configured; return the best policy and the log."""
+                progress: Progress | None = None,
+                on_best: Callable[[ExemplarPolicy], None] | None = None,
+                should_stop: Callable[[], bool] | None = None) -> TrainResult:
+    """Run SAP-GA as configured; return the best policy and the log.
+
+    ``progress(row)`` is called after each generation, ``on_best(policy)`` whenever the best
+    value improves (the policy carries its meta), and the run ends early, with its best so
+    far, once ``should_stop()`` is true.
+    """
     problem = load_problem(config.problem)
     delta = float(problem.default_delta if config.delta is None else config.delta)
     jobs = set_jobs(config.jobs)
@@ -149,9 +155,12 @@ def train_sapga(config: TrainConfig, initial: list[ExemplarPolicy] = (),
         ga, history = SapGA.create(problem, config.params, config.seed, initial), []
     start = time.perf_counter()
     steps_at_start = ga.stats.steps
-    while not ga.stop(config.steps):
+    while not ga.stop(config.steps) and not (should_stop and should_stop()):
         batch = ga.ask()
+        best_before = ga.best
         ga.tell(evaluator.evaluate(batch))
+        if on_best and ga.best is not best_before:
+            on_best(_best_policy(config, ga, delta, jobs))
         st = ga.stats
         elapsed = time.perf_counter() - start
         row = {'generation': st.generation, 'steps': st.steps, 'best_value': st.best_value,
@@ -165,6 +174,11 @@ def train_sapga(config: TrainConfig, initial: list[ExemplarPolicy] = (),
             _save(config, ga, delta, history)
     if config.checkpoint:
         _save(config, ga, delta, history)
+    return TrainResult(_best_policy(config, ga, delta, jobs), history, asdict(ga.stats))
+
+
+def _best_policy(config: TrainConfig, ga: SapGA, delta: float, jobs: int) -> ExemplarPolicy:
+    """The best policy so far, with its provenance in ``meta``."""
     best = ga.best
     meta = {
         'value': best.value, 'delta_star': best.delta_star, 'steps_to_end': best.steps,
@@ -174,9 +188,4 @@ def train_sapga(config: TrainConfig, initial: list[ExemplarPolicy] = (),
         'software': f'sapga_ros {__version__}',
         'time': time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime()),
     }
-    policy = ExemplarPolicy(problem, best.policy.states, best.policy.actions, meta=meta)
-    return TrainResult(policy, history, asdict(ga.stats))
-
-
-def achieved(history: list[dict], delta: float) -> bool:
-    return bool(history) and history[-1]['delta_star'] <= delta + 0.0 * math.inf
+    return ExemplarPolicy(ga.problem, best.policy.states, best.policy.actions, meta=meta)

@@ -1,0 +1,128 @@
+"""The ``sapga`` command as a user runs it: a real subprocess per call."""
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+SAPGA = [sys.executable, '-m', 'sapga_ros.cli']
+
+
+def sapga(*args, cwd=None):
+    return subprocess.run([*SAPGA, *map(str, args)], capture_output=True, text=True,
+                          cwd=cwd, env={**os.environ}, timeout=300)
+
+
+@pytest.fixture(scope='module')
+def trained(tmp_path_factory):
+    """A policy trained by the CLI on the acrobot with delta 0.02 (5 M steps)."""
+    out = tmp_path_factory.mktemp('train') / 'acro.json'
+    r = sapga('train', '--problem', 'acrobot', '--delta', '0.02', '--steps', '5000000',
+              '--seed', '0', '--out', out, '--quiet')
+    assert r.returncode == 0, r.stderr
+    return out, r
+
+
+def test_train_achieves_delta_and_writes_policy_and_log(trained):
+    """SAP-GA on the acrobot reaches delta* <= 0.02 within 5 M steps with seed 0, and
+    writes the policy document and a CSV log of (steps, best value, delta*)."""
+    out, r = trained
+    doc = json.loads(out.read_text())
+    assert doc['format'] == 'sapga-policy/1' and doc['problem'] == 'acrobot'
+    assert doc['meta']['run_delta_star'] <= 0.02
+    log = out.with_suffix('.log.csv').read_text().splitlines()
+    assert log[0].startswith('generation,steps,best_value,delta_star')
+    assert len(log) > 5
+    assert 'achieved delta 0.02' in r.stdout
+
+
+def test_eval_json_reproduces_the_training_value(trained):
+    """``sapga eval --json`` prints return, delta_star, steps, reached equal to what the
+    trainer recorded for the policy."""
+    out, _ = trained
+    r = sapga('eval', out, '--json')
+    assert r.returncode == 0, r.stderr
+    got = json.loads(r.stdout)
+    meta = json.loads(out.read_text())['meta']
+    assert set(got) == {'return', 'delta_star', 'steps', 'reached'}
+    assert got['return'] == meta['value'] and got['steps'] == meta['steps_to_end']
+    assert got['reached'] is True
+
+
+def test_eval_max_steps_and_delta_options(trained):
+    """--max-steps caps the episode and --delta 0 never ends it early."""
+    out, _ = trained
+    got = json.loads(sapga('eval', out, '--json', '--delta', '0', '--max-steps', '50').stdout)
+    assert got['steps'] == 50 and got['reached'] is False
+
+
+def test_exemplars_lists_plots_and_prunes(trained, tmp_path):
+    """``sapga exemplars`` lists referral counts, draws a PNG and writes a pruned policy
+    that behaves exactly like the original."""
+    out, _ = trained
+    png, pruned = tmp_path / 'ex.png', tmp_path / 'pruned.json'
+    r = sapga('exemplars', out, '--json', '--plot', png, '--prune-unused', pruned)
+    assert r.returncode == 0, r.stderr
+    rows = json.loads(r.stdout)
+    used = [row for row in rows if row['uses'] > 0]
+    assert 0 < len(used) < len(rows)
+    assert png.stat().st_size > 10_000
+    a = json.loads(sapga('eval', out, '--json').stdout)
+    b = json.loads(sapga('eval', pruned, '--json').stdout)
+    assert a == b
+
+
+def test_ql_training_writes_an_evaluable_table(tmp_path):
+    """``--method ql`` writes a sapga-qtable/1 file that ``sapga eval`` runs."""
+    out = tmp_path / 'q.json'
+    r = sapga('train', '--problem', 'pdip_single', '--method', 'ql', '--steps', '200000',
+              '--delta', '0.01', '--out', out, '--quiet')
+    assert r.returncode == 0, r.stderr
+    got = json.loads(sapga('eval', out, '--json').stdout)
+    assert got['return'] == json.loads(out.read_text())['meta']['value']
+
+
+@pytest.mark.parametrize('args, needle', [
+    (['train', '--problem', 'nope'], "unknown problem 'nope'"),
+    (['train', '--problem', 'acrobot', '--steps', '-5'], 'positive integer'),
+    (['train', '--problem', 'acrobot', '--delta', 'nan'], 'finite delta'),
+    (['eval', 'missing.json'], 'cannot read'),
+    (['train', '--problem', 'acrobot', '--resume'], '--resume needs --checkpoint'),
+])
+def test_user_errors_print_one_line_and_exit_nonzero(args, needle, tmp_path):
+    """Bad options print one clear line naming the problem, no traceback, status 2."""
+    r = sapga(*args, cwd=tmp_path)
+    assert r.returncode == 2
+    assert needle in r.stderr
+    assert 'Traceback' not in r.stderr
+    assert len([ln for ln in r.stderr.splitlines() if 'error' in ln]) == 1
+
+
+@pytest.mark.parametrize('content, needle', [
+    ('{"format": "sapga-policy/1", "problem": "acrobot", "style": "state-action", '
+     '"state_names": ["theta1", "theta2", "theta1_dot", "theta2_dot"], '
+     '"actions": [-2.0, 0.0, 2.0], "exemplars": [{"state": [NaN, 0, 0, 0], "action": 2.0}]}',
+     'NaN'),
+    ('{"format": "sapga-policy/1", "problem": "acrobot", "style": "state-action", '
+     '"state_names": ["theta1", "theta2", "theta1_dot", "theta2_dot"], '
+     '"actions": [-2.0, 0.0, 2.0], "exemplars": [{"state": [0, 0, 0], "action": 2.0}]}',
+     'exemplars[0].state: expected 4 numbers'),
+    ('{"format": "sapga-policy/1", "problem": "acrobot"', 'malformed JSON'),
+])
+def test_bad_policy_files_are_refused_by_eval(content, needle, tmp_path):
+    """``sapga eval`` refuses hostile policy files with the field named."""
+    path = tmp_path / 'bad.json'
+    path.write_text(content)
+    r = sapga('eval', path)
+    assert r.returncode == 2 and needle in r.stderr and 'Traceback' not in r.stderr
+
+
+def test_bench_json_reports_rates_and_ratio():
+    """``sapga bench --json`` prints the per-core rates and the NumPy ratio as numbers."""
+    r = sapga('bench', '--json')
+    assert r.returncode == 0, r.stderr
+    got = json.loads(r.stdout)
+    for key in ('acrobot_steps_per_s_per_core', 'pdip_steps_per_s_per_core',
+                'speedup_vs_numpy'):
+        assert got[key] > 0

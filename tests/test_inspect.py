@@ -1,0 +1,263 @@
+"""Tests of ``sapga inspect`` (sapga_ros.inspect_mcap) on synthetic recordings.
+
+The recordings are written with the core writer (no ROS graph), so every number the summary
+should report is known in advance.
+"""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import pytest
+from rclpy.serialization import serialize_message
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64, Int32, String
+
+from sapga_ros.inspect_mcap import inspect_main, run_inspect
+from sapga_ros.recording import (METADATA_NAME, ROLE_TYPES, ChannelInfo, McapRecordingWriter,
+                                 qos_profiles_yaml, read_recording)
+from sim_nodes.goal import delta_of
+from sim_nodes.problem import load_problem
+
+TOPICS = {'state': '/joint_states', 'command': '/command', 'reward': '/reward',
+          'event': '/episode_event', 'exemplar': '/exemplar_index'}
+
+
+def acrobot_states(n: int) -> list[list[float]]:
+    """n acrobot states swinging from hanging (3pi/2) to exactly upright at rest (pi/2)."""
+    return [[1.5 * math.pi - math.pi * k / (n - 1), 0.1 * math.sin(k) * (k < n - 1),
+             -1.0 * (k < n - 1), 0.5 * (k < n - 1)] for k in range(n)]
+
+
+def pdip_states(n: int) -> list[list[float]]:
+    return [[0.1 * k, 0.2, 1.5 * math.pi - 0.1 * k, 1.5 * math.pi - 0.05 * k, -0.3, 0.4]
+            for k in range(n)]
+
+
+def write_recording(path_dir: Path, problem_name: str, episodes: list[dict], *,
+                    chunk_size: int = 1024, metadata: bool = True) -> Path:
+    """A recording of the given episodes: dicts of states, commands, rewards, end."""
+    problem = load_problem(problem_name)
+    info = {role: ChannelInfo(topic, ROLE_TYPES[role], qos_profiles_yaml([{}]))
+            for role, topic in TOPICS.items()}
+    meta = {METADATA_NAME: {'problem': problem_name, 'delta': '0.02',
+                            'topics': json.dumps(TOPICS)}} if metadata else {}
+    t = [1_700_000_000_000_000_000]
+    step = [0]
+
+    def put(writer: McapRecordingWriter, role: str, msg: object) -> None:
+        t[0] += 1_000_000
+        writer.write(info[role], serialize_message(msg), t[0], t[0])
+
+    with McapRecordingWriter.create(path_dir, problem_name, chunk_size=chunk_size,
+                                    metadata=meta) as writer:
+        for number, ep in enumerate(episodes):
+            put(writer, 'event', String(data=json.dumps({'event': 'start', 'episode': number,
+                                                         'step': 0, 'time': step[0] * 0.05})))
+            for k, s in enumerate(ep['states']):
+                put(writer, 'state', joint_state(problem, s, step[0]))
+                step[0] += 1
+                if k < len(ep['commands']):
+                    put(writer, 'command', Float64(data=ep['commands'][k]))
+                    put(writer, 'exemplar', Int32(data=k % 5))
+                    put(writer, 'reward', Float64(data=ep['rewards'][k]))
+            end = {'event': ep['end'], 'episode': number, 'step': len(ep['rewards']),
+                   'return': sum(ep['rewards']), 'goal_delta': 0.02,
+                   'delta_star': min(delta_of(problem, s) for s in ep['states']),
+                   'time': (step[0] - 1) * 0.05}
+            put(writer, 'event', String(data=json.dumps(end)))
+        return writer.path
+
+
+def joint_state(problem, s: list[float], step: int) -> JointState:
+    """The JointState of state s, laid out per the problem's state table."""
+    msg = JointState()
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(step * 50_000_000, 1_000_000_000)
+    msg.header.frame_id = problem.ros.get('frame_id', problem.name)
+    joints = list(problem.joints)
+    pos, vel = [0.0] * len(joints), [0.0] * len(joints)
+    for coord, value in zip(problem.state, s):
+        (pos if coord.field == 'position' else vel)[joints.index(coord.joint)] = value
+    msg.name, msg.position, msg.velocity, msg.effort = joints, pos, vel, [0.0] * len(joints)
+    return msg
+
+
+def episode(states: list[list[float]], end: str) -> dict:
+    n = len(states) - 1     # one command and reward per MDP step
+    commands = [(-2.0, 0.0, 2.0, 2.0)[k % 4] for k in range(n)]
+    rewards = [-3.0 + 0.5 * math.sin(k) for k in range(n)]
+    return {'states': states, 'commands': commands, 'rewards': rewards, 'end': end}
+
+
+@pytest.fixture(scope='module')
+def acrobot_file(tmp_path_factory) -> tuple[Path, list[dict]]:
+    eps = [episode(acrobot_states(30)[:20], 'step_limit'), episode(acrobot_states(25), 'goal')]
+    return write_recording(tmp_path_factory.mktemp('acrobot'), 'acrobot', eps), eps
+
+
+def inspect_json(capsys, path: Path, *args: str) -> tuple[int, dict, str]:
+    rc = inspect_main([str(path), '--json', *args])
+    out, err = capsys.readouterr()
+    return rc, (json.loads(out) if out.strip() else {}), err
+
+
+def test_json_gives_back_the_known_episode_numbers(capsys, acrobot_file):
+    """--json reports each episode's return, steps, goal, delta* and action counts."""
+    path, eps = acrobot_file
+    rc, summary, err = inspect_json(capsys, path)
+    assert rc == 0 and err == ''
+    assert summary['complete'] and summary['error'] is None
+    assert summary['profile'] == 'ros2' and summary['problem'] == 'acrobot'
+    assert summary['message_count'] == sum(2 + len(e['states']) + 3 * len(e['rewards'])
+                                           for e in eps)
+    counts = {t['topic']: t['count'] for t in summary['topics']}
+    assert counts['/joint_states'] == 20 + 25 and counts['/episode_event'] == 4
+    got = summary['episodes']
+    assert [e['episode'] for e in got] == [0, 1]
+    assert [e['end'] for e in got] == ['step_limit', 'goal']
+    for e, ep in zip(got, eps):
+        assert e['steps'] == len(ep['rewards'])
+        assert e['return'] == pytest.approx(sum(ep['rewards']))
+        assert e['return_from_rewards'] == pytest.approx(sum(ep['rewards']))
+        assert e['actions'] == {'-2': ep['commands'].count(-2.0),
+                                '0': ep['commands'].count(0.0),
+                                '2': ep['commands'].count(2.0)}
+        assert e['messages'] == {'states': len(ep['states']), 'rewards': len(ep['rewards']),
+                                 'commands': len(ep['commands'])}
+        assert e['delta_star'] == pytest.approx(e['delta_star_from_states'])
+    assert got[0]['reached_goal'] is False and got[0]['steps_to_goal'] is None
+    assert got[1]['reached_goal'] is True and got[1]['steps_to_goal'] == 24
+    assert got[1]['delta_star'] == 0.0 and got[1]['achieved'] is True
+    assert summary['episodes_reaching_goal'] == 1
+
+
+def test_text_summary_names_topics_and_episodes(capsys, acrobot_file):
+    """The text summary lists the topics and says which episode reached the goal."""
+    path, _ = acrobot_file
+    assert run_inspect(str(path)) == 0
+    out = capsys.readouterr().out
+    assert '/joint_states' in out and 'sensor_msgs/msg/JointState' in out
+    assert 'not reached' in out and 'goal' in out
+
+
+@pytest.mark.parametrize('problem_name', ['acrobot', 'pdip'])
+def test_plot_writes_a_png(capsys, tmp_path, problem_name):
+    """--plot draws a non-empty PNG for the acrobot and the PDIP."""
+    states = acrobot_states(30) if problem_name == 'acrobot' else pdip_states(30)
+    path = write_recording(tmp_path, problem_name, [episode(states, 'step_limit')])
+    png = tmp_path / 'episode.png'
+    rc, summary, err = inspect_json(capsys, path, '--plot', str(png))
+    assert rc == 0, err
+    data = png.read_bytes()
+    assert data.startswith(b'\x89PNG\r\n\x1a\n') and len(data) > 10_000
+    assert summary['plot']['episode'] == 0
+
+
+def test_truncated_file_gives_a_partial_summary(capsys, tmp_path, acrobot_file):
+    """A file cut mid-way is summarised up to its last complete chunk, with one warning."""
+    path, _ = acrobot_file
+    data = path.read_bytes()
+    cut = tmp_path / 'cut.mcap'
+    cut.write_bytes(data[:int(len(data) * 0.6)])
+    rc, summary, err = inspect_json(capsys, cut)
+    assert rc == 0
+    assert summary['complete'] is False and 'truncated' in summary['error']
+    assert 0 < summary['message_count'] < len(read_recording(path).messages)
+    assert err.count('\n') == 1 and err.startswith('warning: ') and str(cut) in err
+    assert summary['episodes'][0]['episode'] == 0
+
+
+@pytest.mark.parametrize('content, what', [
+    (b'', 'empty'),
+    (b'this is not an mcap file at all', 'not an MCAP file'),
+    (b'\x89MCAP0\r\n\x01\x10', 'truncated'),
+])
+def test_unreadable_file_gives_a_one_line_error(capsys, tmp_path, content, what):
+    """Files that hold no readable MCAP give exit status 1 and one line naming the file."""
+    bad = tmp_path / 'bad.mcap'
+    bad.write_bytes(content)
+    rc = run_inspect(str(bad), json_out=True)
+    out, err = capsys.readouterr()
+    assert rc == 1 and out == ''
+    assert err.count('\n') == 1 and err.startswith('error: ') and str(bad) in err
+    assert what in err
+
+
+def test_missing_file_gives_a_one_line_error(capsys, tmp_path):
+    """A path that does not exist is named in a one-line error."""
+    assert run_inspect(str(tmp_path / 'nope.mcap')) == 1
+    err = capsys.readouterr().err
+    assert err.count('\n') == 1 and 'nope.mcap: no such file' in err
+
+
+def test_corrupt_chunk_never_gives_a_traceback(capsys, tmp_path, acrobot_file):
+    """Bytes flipped inside the data give a summary or a clear error, not a traceback."""
+    path, _ = acrobot_file
+    data = bytearray(path.read_bytes())
+    for i in range(len(data) // 2, len(data) // 2 + 40):
+        data[i] ^= 0xFF
+    bad = tmp_path / 'flipped.mcap'
+    bad.write_bytes(bytes(data))
+    rc = run_inspect(str(bad), json_out=True)
+    out, err = capsys.readouterr()
+    assert rc in (0, 1) and 'Traceback' not in err and err.count('\n') == 1
+    if rc == 0:
+        summary = json.loads(out)
+        assert summary['complete'] is False and summary['error']
+
+
+def test_problem_comes_from_frame_id_without_metadata(capsys, tmp_path):
+    """Without the sapga metadata the problem is found from the JointState frame_id."""
+    path = write_recording(tmp_path, 'pdip', [episode(pdip_states(10), 'step_limit')],
+                           metadata=False)
+    rc, summary, _ = inspect_json(capsys, path)
+    assert rc == 0 and summary['problem'] == 'pdip'
+    assert summary['episodes'][0]['steps'] == 9
+    assert summary['episodes'][0]['delta_star_from_states'] is not None
+
+
+def test_states_go_to_their_episode_by_sim_time(capsys, tmp_path):
+    """A final state heard after its end event, or a first state before its start event,
+    still counts in its own episode (events carry the sim time of their state)."""
+    problem = load_problem('acrobot')
+    info = {role: ChannelInfo(topic, ROLE_TYPES[role], qos_profiles_yaml([{}]))
+            for role, topic in TOPICS.items()}
+    states = acrobot_states(5)
+    order = [('event', {'event': 'start', 'episode': 1, 'time': 0.0}),
+             ('state', 0), ('state', 1), ('state', 2), ('state', 3),
+             ('event', {'event': 'goal', 'episode': 1, 'step': 4, 'return': -8.0,
+                        'time': 0.2}),
+             ('state', 4),          # the goal state, heard after the goal event
+             ('state', 5),          # the next episode's first state, before its start event
+             ('event', {'event': 'start', 'episode': 2, 'time': 0.25}),
+             ('state', 6),
+             ('event', {'event': 'step_limit', 'episode': 2, 'step': 1, 'time': 0.3})]
+    with McapRecordingWriter.create(tmp_path, 'acrobot', metadata={METADATA_NAME: {
+            'problem': 'acrobot', 'topics': json.dumps(TOPICS)}}) as writer:
+        for t, (role, item) in enumerate(order, start=1):
+            msg = (String(data=json.dumps(item)) if role == 'event'
+                   else joint_state(problem, states[min(item, 4)], item))
+            writer.write(info[role], serialize_message(msg), t, t)
+    rc, summary, _ = inspect_json(capsys, writer.path)
+    first, second = summary['episodes']
+    assert rc == 0 and first['episode'] == 1 and second['episode'] == 2
+    assert first['messages']['states'] == 5 and second['messages']['states'] == 2
+    assert first['delta_star_from_states'] == 0.0     # the late goal state was counted
+
+
+def test_every_truncation_point_gives_a_summary_or_one_line_error(capsys, tmp_path,
+                                                                  acrobot_file):
+    """Cut anywhere, a recording gives exit 0 with a partial summary or 1 with one line."""
+    path, _ = acrobot_file
+    data = path.read_bytes()
+    cut = tmp_path / 'cut.mcap'
+    counts = []
+    for n in list(range(0, len(data), max(len(data) // 60, 1))) + [len(data) - 1]:
+        cut.write_bytes(data[:n])
+        rc = run_inspect(str(cut), json_out=True)
+        out, err = capsys.readouterr()
+        assert rc in (0, 1) and err.count('\n') == 1 and str(cut) in err, (n, err)
+        if rc == 0:
+            counts.append(json.loads(out)['message_count'])
+    assert counts == sorted(counts) and counts[-1] > 0      # more bytes, never fewer messages
