@@ -6,6 +6,7 @@
     sapga exemplars POLICY [--json] [--plot OUT.png] [--prune-unused OUT.json]
     sapga bench [--json]
     sapga inspect FILE.mcap [--json] [--plot OUT.png]
+    sapga experiment [table2] --out DIR [--only 2,4] [--seeds N] [--scale F]
     sapga launch NAME ...
 
 User errors (bad files, unknown problems, invalid numbers) print one line naming what is
@@ -106,6 +107,17 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument('file')
     i.add_argument('--json', action='store_true')
     i.add_argument('--plot', metavar='OUT.png')
+
+    ex = sub.add_parser('experiment', help='run the paper\'s experiments (Table 2)')
+    ex.add_argument('name', nargs='?', default='table2',
+                    help='msg_configs/experiments/<name>.yaml (default table2)')
+    ex.add_argument('--out', required=True, help='directory for summary.json and figures')
+    ex.add_argument('--only', help='comma-separated experiment ids, e.g. 2,4')
+    ex.add_argument('--seeds', type=_positive_int, help='seeds per experiment (default 20)')
+    ex.add_argument('--scale', type=_delta, default=1.0,
+                    help='multiply every step budget (e.g. 0.1 for a quick look)')
+    ex.add_argument('--workers', type=_nonneg_int, default=0,
+                    help='parallel runs (default 0: every core)')
 
     la = sub.add_parser('launch', help='start a group of nodes (swingup, train_deploy)',
                         add_help=False)
@@ -299,13 +311,26 @@ def cmd_inspect(args) -> int:
     return run_inspect(args.file, json_out=args.json, plot=args.plot)
 
 
+def cmd_experiment(args) -> int:
+    from sapga_ros.experiments import run_experiments
+    only = None
+    if args.only:
+        try:
+            only = [int(x) for x in args.only.split(',') if x.strip()]
+        except ValueError:
+            raise SapgaError(f'--only: expected comma-separated ids, got {args.only!r}')
+    run_experiments(args.name, args.out, only, args.seeds, args.scale, args.workers or None)
+    return 0
+
+
 def cmd_launch(args) -> int:
     from sapga_ros.launch import run_launch
     return run_launch(args.name, args.args)
 
 
 COMMANDS = {'train': cmd_train, 'eval': cmd_eval, 'exemplars': cmd_exemplars,
-            'bench': cmd_bench, 'inspect': cmd_inspect, 'launch': cmd_launch}
+            'bench': cmd_bench, 'inspect': cmd_inspect, 'launch': cmd_launch,
+            'experiment': cmd_experiment}
 
 
 def main(argv: list[str] | None = None) -> int:

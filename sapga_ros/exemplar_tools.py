@@ -29,6 +29,14 @@ def _pairs(problem) -> list[tuple[int, int]]:
     return pairs
 
 
+def _break_wraps(x: np.ndarray, y: np.ndarray, angle: bool):
+    """Insert gaps where an angle wraps round, so no line crosses the picture."""
+    if not angle or len(x) < 2:
+        return x, y
+    cut = np.flatnonzero(np.abs(np.diff(x)) > np.pi) + 1
+    return np.insert(x.astype(float), cut, np.nan), np.insert(y.astype(float), cut, np.nan)
+
+
 def plot_exemplars(policy: ExemplarPolicy, episode, counts: np.ndarray, out: str) -> None:
     import matplotlib
     matplotlib.use('Agg')
@@ -45,8 +53,9 @@ def plot_exemplars(policy: ExemplarPolicy, episode, counts: np.ndarray, out: str
             ax.scatter(policy.states[sel, i], policy.states[sel, j],
                        s=12 + 3 * np.sqrt(counts[sel]), c=colours.get(a, 'k'),
                        label=f'action {a:g}', alpha=0.8, edgecolors='none')
-        ax.plot(episode.states[:, i], episode.states[:, j], 'k-', lw=0.6, alpha=0.6,
-                label='trajectory')
+        xs, ys = _break_wraps(episode.states[:, i], episode.states[:, j],
+                              problem.state[i].angle)
+        ax.plot(xs, ys, 'k-', lw=0.6, alpha=0.6, label='trajectory')
         ax.set_xlabel(f'{problem.state[i].name} [{problem.state[i].unit}]')
         ax.set_ylabel(f'{problem.state[j].name} [{problem.state[j].unit}]')
         ax.set_xlim(problem.state[i].low, problem.state[i].high)
