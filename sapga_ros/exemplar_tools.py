@@ -37,12 +37,51 @@ def _break_wraps(x: np.ndarray, y: np.ndarray, angle: bool):
     return np.insert(x.astype(float), cut, np.nan), np.insert(y.astype(float), cut, np.nan)
 
 
+def policy_map(policy: ExemplarPolicy, resolution: int = 200):
+    """Action chosen over a grid of a 2-D problem's state space: (xs, ys, action values)."""
+    from sapga_ros.selector import nearest, normalize_into, normalize_states
+    problem = policy.problem
+    xs = np.linspace(problem.low[0], problem.high[0], resolution)
+    ys = np.linspace(problem.low[1], problem.high[1], resolution)
+    ex = normalize_states(policy.states, problem.ranges, problem.is_angle)
+    inv, ang = 1.0 / problem.ranges, problem.is_angle
+    u, acc = np.empty(2), np.empty(len(policy))
+    values = policy.action_values
+    grid = np.empty((resolution, resolution))
+    for i, y in enumerate(ys):
+        for j, x in enumerate(xs):
+            normalize_into(np.array([x, y]), inv, ang, u)
+            grid[i, j] = values[nearest(u, ex, len(policy), ang, acc)]
+    return xs, ys, grid
+
+
 def plot_exemplars(policy: ExemplarPolicy, episode, counts: np.ndarray, out: str) -> None:
+    """Exemplars and trajectory per (angle, velocity) pair; for a 2-D problem the policy
+    map of the paper's Figure 5 (the action taken everywhere, exemplars, trajectory)."""
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
 
     problem = policy.problem
+    if problem.dim == 2:
+        xs, ys, grid = policy_map(policy)
+        fig, ax = plt.subplots(figsize=(6, 5))
+        ax.pcolormesh(xs, ys, grid, cmap='Greys', shading='auto', alpha=0.6)
+        values = policy.action_values
+        for a, marker in zip(problem.actions, ('s', '^', 'o')):
+            sel = values == a
+            ax.scatter(policy.states[sel, 0], policy.states[sel, 1], marker=marker,
+                       facecolors='none', edgecolors='k', label=f'exemplar, action {a:g}')
+        ax.plot(episode.states[:, 0], episode.states[:, 1], 'r-', lw=1, label='trajectory')
+        ax.set_xlabel(f'{problem.state[0].name} [{problem.state[0].unit}]')
+        ax.set_ylabel(f'{problem.state[1].name} [{problem.state[1].unit}]')
+        ax.legend(fontsize=7, loc='lower left')
+        ax.set_title(f'{problem.name}: action {max(problem.actions):g} in dark areas; '
+                     f'{episode.steps} steps')
+        fig.tight_layout()
+        fig.savefig(out, dpi=110)
+        plt.close(fig)
+        return
     pairs = _pairs(problem)
     fig, axes = plt.subplots(1, len(pairs), figsize=(4.5 * len(pairs), 4), squeeze=False)
     values = policy.action_values

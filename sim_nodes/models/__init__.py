@@ -17,7 +17,7 @@ from types import ModuleType
 
 from sapga_ros.errors import ConfigError
 
-MODELS = ('acrobot', 'pdip')
+MODELS = ('acrobot', 'pdip', 'mountain_car')
 
 
 def model_module(name: str) -> ModuleType:
