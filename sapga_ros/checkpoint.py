@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 import zipfile
 from pathlib import Path
 from typing import Any
@@ -17,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from sapga_ros.errors import CheckpointError
+from sapga_ros.fileio import write_atomic
 
 FORMAT = 'sapga-checkpoint/1'
 FILENAME = 'checkpoint.npz'
@@ -25,21 +25,9 @@ FILENAME = 'checkpoint.npz'
 def save_checkpoint(directory: str | os.PathLike, meta: dict[str, Any],
                     arrays: dict[str, np.ndarray]) -> Path:
     """Write ``directory/checkpoint.npz`` atomically (temporary file + rename)."""
-    directory = Path(directory)
-    directory.mkdir(parents=True, exist_ok=True)
-    path = directory / FILENAME
     doc = json.dumps({'format': FORMAT, **meta}, allow_nan=True).encode()
-    fd, tmp = tempfile.mkstemp(prefix='.checkpoint.', suffix='.npz', dir=directory)
-    try:
-        with os.fdopen(fd, 'wb') as f:
-            np.savez(f, meta=np.frombuffer(doc, dtype=np.uint8), **arrays)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    return write_atomic(Path(directory) / FILENAME, lambda f: np.savez(
+        f, meta=np.frombuffer(doc, dtype=np.uint8), **arrays))
 
 
 def load_checkpoint(directory: str | os.PathLike) -> tuple[dict[str, Any], dict[str, np.ndarray]]:

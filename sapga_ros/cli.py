@@ -27,24 +27,21 @@ from sapga_ros.errors import SapgaError
 EXIT_USAGE = 2
 
 
-def _positive_int(text: str) -> int:
-    try:
-        value = int(float(text)) if 'e' in text.lower() else int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f'expected a positive integer, got {text!r}')
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f'expected a positive integer, got {text!r}')
-    return value
+def _int_at_least(minimum: int, what: str):
+    """An argparse type: an integer >= minimum (1e6-style numbers allowed)."""
+    def parse(text: str) -> int:
+        try:
+            value = int(float(text)) if 'e' in text.lower() else int(text)
+        except (ValueError, OverflowError):
+            value = minimum - 1
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f'expected {what}, got {text!r}')
+        return value
+    return parse
 
 
-def _nonneg_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f'expected an integer >= 0, got {text!r}')
-    if value < 0:
-        raise argparse.ArgumentTypeError(f'expected an integer >= 0, got {text!r}')
-    return value
+_positive_int = _int_at_least(1, 'a positive integer')
+_nonneg_int = _int_at_least(0, 'an integer >= 0')
 
 
 def _delta(text: str) -> float:

@@ -121,19 +121,23 @@ def episode_kernels(model: str) -> EpisodeKernels:
         r = np.zeros(LANES)
         u = np.empty(dim)
         acc = np.empty(ex.shape[2])
-        pol = np.full(LANES, -1)
-        nxt = first
+        pol = np.full(LANES, -1)                  # policy on each lane; -1: idle
         for lane in range(LANES):
             S[:, lane] = s0
-            if nxt < stop:
-                pol[lane] = nxt
-                returns[nxt] = 0.0
-                steps[nxt] = 0
-                dstar[nxt] = goal_delta(s0, best, inv_scale, fixed, is_angle)
-                reached[nxt] = False
-                nxt += 1
-        active = min(LANES, stop - first)
-        while active > 0:
+        nxt = first
+        active = 0
+        while True:
+            for lane in range(LANES):               # idle lanes take the next policies
+                if pol[lane] < 0 and nxt < stop:
+                    pol[lane] = nxt
+                    returns[nxt] = 0.0
+                    steps[nxt] = 0
+                    dstar[nxt] = goal_delta(s0, best, inv_scale, fixed, is_angle)
+                    reached[nxt] = False
+                    nxt += 1
+                    active += 1
+            if active == 0:
+                break
             for lane in range(LANES):
                 k = pol[lane]
                 if k >= 0:
@@ -151,23 +155,13 @@ def episode_kernels(model: str) -> EpisodeKernels:
                 d = goal_delta(S[:, lane], best, inv_scale, fixed, is_angle)
                 if d < dstar[k]:
                     dstar[k] = d
-                done = steps[k] >= n_step
                 if d <= delta:  # goal test after the step's reward is counted
                     reached[k] = True
-                    done = True
-                if done:
+                if reached[k] or steps[k] >= n_step:
                     S[:, lane] = s0
                     a[lane] = 0.0
-                    if nxt < stop:
-                        pol[lane] = nxt
-                        returns[nxt] = 0.0
-                        steps[nxt] = 0
-                        dstar[nxt] = goal_delta(s0, best, inv_scale, fixed, is_angle)
-                        reached[nxt] = False
-                        nxt += 1
-                    else:
-                        pol[lane] = -1
-                        active -= 1
+                    pol[lane] = -1
+                    active -= 1
 
     @kernel(parallel=True)
     def evaluate_batch(ex, act, lengths, s0, p, inv_range, is_angle, best, inv_scale, fixed,

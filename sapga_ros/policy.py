@@ -12,7 +12,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -20,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from sapga_ros.errors import PolicyFileError, SapgaError
+from sapga_ros.fileio import write_atomic
 from sim_nodes.problem import Problem, load_problem
 
 FORMAT = 'sapga-policy/1'
@@ -85,21 +85,6 @@ class ExemplarPolicy:
             raise SapgaError(f'{path}: exists; refusing to overwrite')
         write_atomic(path, self.to_json())
         return path
-
-
-def write_atomic(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file in the same folder."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f'.{path.name}.', dir=path.parent)
-    try:
-        with os.fdopen(fd, 'w', encoding='utf-8') as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def _reject_constant(name: str) -> float:

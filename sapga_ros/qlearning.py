@@ -26,7 +26,8 @@ from sapga_ros import __version__
 from sapga_ros.checkpoint import load_checkpoint, save_checkpoint
 from sapga_ros.errors import CheckpointError, PolicyFileError
 from sapga_ros.evaluation import Episode
-from sapga_ros.policy import MAX_POLICY_BYTES, _finite, _reject_constant, write_atomic
+from sapga_ros.fileio import write_atomic
+from sapga_ros.policy import MAX_POLICY_BYTES, _finite, _reject_constant
 from sim_nodes.goal import goal_arrays, goal_delta
 from sim_nodes.jit import kernel
 from sim_nodes.models import model_module
