@@ -1,0 +1,238 @@
+"""Helpers shared by the ROS 2 nodes (SPEC 4; the topic contract is docs/ros_interface.md).
+
+Everything a node needs from a problem's ``ros:`` section, in one place:
+
+* ``topic_names(problem)``: the topic names of ``ros.topics`` (relative, so ``__ns``
+  remapping namespaces them), with the contract's defaults;
+* ``qos_profile(problem)``: the ``ros.qos`` profile of the state and command topics;
+* ``EVENT_QOS``, ``CLOCK_QOS``: the profiles of ``episode_event`` and ``/clock``;
+* ``QUIET_PUBLISHER``: ``event_callbacks`` for publishers on the per-step path;
+* ``JointStateLayout``: the state vector <-> ``sensor_msgs/JointState`` per the ``state:``
+  layout (``joint``, ``field``); ``from_msg`` checks names, lengths and finiteness and
+  raises ``MessageError`` naming what is wrong;
+* ``stamp_ns``/``steady_clock``/``THROTTLE_S``: time helpers;
+* ``run_node(make_node, args)``: the body of every executable's ``main()``: ``rclpy.init``,
+  build the node, spin, clean shutdown on Ctrl-C, one-line error and exit code 1 on a
+  configuration error.
+"""
+from __future__ import annotations
+
+import array
+import math
+import sys
+from typing import Any, Callable
+
+import numpy as np
+import rclpy
+from rclpy.clock import Clock, ClockType
+from rclpy.event_handler import PublisherEventCallbacks
+from rclpy.exceptions import ParameterException
+from rclpy.executors import Executor, ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import JointState
+
+from sapga_ros.errors import ConfigError, SapgaError
+from sim_nodes.problem import Problem
+
+THROTTLE_S = 2.0  # [s] between repeats of a warning about bad input
+DEFAULT_TOPICS = {'state': 'joint_states', 'command': 'command', 'reward': 'reward',
+                  'event': 'episode_event', 'exemplar': 'exemplar_index'}
+# Late joiners (recorders, tests) get the last episode events; volatile readers still match.
+EVENT_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
+                       durability=DurabilityPolicy.TRANSIENT_LOCAL)
+# Reliable keep-last-1 matches both reliable and best-effort /clock readers (rclpy's).
+CLOCK_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
+# rclpy gives every publisher two default QoS-event handlers (incompatible QoS / type), and
+# the Python executor rebuilds its wait set with each of them on every spin: about 20 % of
+# the lockstep loop.  Publishers of per-step topics go without; the subscriptions keep
+# theirs, so an incompatible pairing is still reported, by the reading node.
+QUIET_PUBLISHER = PublisherEventCallbacks(use_default_callbacks=False)
+
+_RELIABILITY = {'reliable': ReliabilityPolicy.RELIABLE,
+                'best_effort': ReliabilityPolicy.BEST_EFFORT}
+_DURABILITY = {'volatile': DurabilityPolicy.VOLATILE,
+               'transient_local': DurabilityPolicy.TRANSIENT_LOCAL}
+_HISTORY = {'keep_last': HistoryPolicy.KEEP_LAST, 'keep_all': HistoryPolicy.KEEP_ALL}
+
+
+class MessageError(SapgaError):
+    """A received message fails validation (wrong names, sizes, non-finite values)."""
+
+
+def topic_names(problem: Problem) -> dict[str, str]:
+    """``ros.topics`` of the problem over the contract's defaults (keys as DEFAULT_TOPICS)."""
+    given = problem.ros.get('topics') or {}
+    if not isinstance(given, dict):
+        raise ConfigError(f'{problem.source}: ros.topics: expected a mapping')
+    names = dict(DEFAULT_TOPICS)
+    for key, value in given.items():
+        if not isinstance(value, str) or not value:
+            raise ConfigError(f'{problem.source}: ros.topics.{key}: expected a topic name, '
+                              f'got {value!r}')
+        names[str(key)] = value
+    return names
+
+
+def _choice(cfg: dict, key: str, table: dict, default: str, source: str) -> Any:
+    value = cfg.get(key, default)
+    if value not in table:
+        raise ConfigError(f'{source}: ros.qos.{key}: expected one of {", ".join(table)}, '
+                          f'got {value!r}')
+    return table[value]
+
+
+def qos_profile(problem: Problem) -> QoSProfile:
+    """The QoS of ``ros.qos`` (reliability, durability, history, depth) for state/command."""
+    cfg = problem.ros.get('qos') or {}
+    if not isinstance(cfg, dict):
+        raise ConfigError(f'{problem.source}: ros.qos: expected a mapping')
+    depth = cfg.get('depth', 10)
+    if isinstance(depth, bool) or not isinstance(depth, int) or depth < 1:
+        raise ConfigError(f'{problem.source}: ros.qos.depth: expected an integer >= 1, '
+                          f'got {depth!r}')
+    return QoSProfile(
+        depth=depth,
+        reliability=_choice(cfg, 'reliability', _RELIABILITY, 'reliable', problem.source),
+        durability=_choice(cfg, 'durability', _DURABILITY, 'volatile', problem.source),
+        history=_choice(cfg, 'history', _HISTORY, 'keep_last', problem.source))
+
+
+def stamp_ns(msg: Any) -> int:
+    """A message header's stamp in integer nanoseconds."""
+    stamp = msg.header.stamp
+    return stamp.sec * 1_000_000_000 + stamp.nanosec
+
+
+def steady_clock() -> Clock:
+    """A steady clock for timers that must run whatever ``use_sim_time`` says."""
+    return Clock(clock_type=ClockType.STEADY_TIME)
+
+
+class JointStateLayout:
+    """The state vector of a problem carried in ``sensor_msgs/JointState`` (SPEC 4).
+
+    ``name`` = ``ros.joints``; each state coordinate sits in ``position`` or ``velocity`` of
+    its joint (the YAML ``state:`` layout); ``effort`` is the actuator's torque/force on
+    ``actuator.joint``, 0 elsewhere.  Joints that carry no coordinate read 0.
+    """
+
+    def __init__(self, problem: Problem) -> None:
+        joints = tuple(problem.joints)
+        where = f'{problem.source}: ros.joints'
+        if not joints or not all(isinstance(j, str) and j for j in joints):
+            raise ConfigError(f'{where}: expected a list of joint names')
+        if len(set(joints)) != len(joints):
+            raise ConfigError(f'{where}: duplicate joint names {list(joints)}')
+        index = {j: i for i, j in enumerate(joints)}
+        self.problem = problem
+        self.joints = joints
+        self.frame_id = str(problem.ros.get('frame_id', problem.name))
+        self.dim = problem.dim
+        # (state index, joint index) pairs per field
+        self.position = tuple((d, index[c.joint]) for d, c in enumerate(problem.state)
+                              if c.field == 'position' and c.joint in index)
+        self.velocity = tuple((d, index[c.joint]) for d, c in enumerate(problem.state)
+                              if c.field == 'velocity' and c.joint in index)
+        missing = [c.joint for c in problem.state if c.joint not in index]
+        if missing:
+            raise ConfigError(f'{where}: joints {missing} of the state layout are not listed')
+        if problem.actuator_joint not in index:
+            raise ConfigError(f'{problem.source}: actuator.joint: {problem.actuator_joint!r} '
+                              f'is not one of ros.joints {list(joints)}')
+        self.actuator = index[problem.actuator_joint]
+        self._joint_list = list(joints)
+
+    def new_msg(self) -> JointState:
+        """An empty JointState with this layout's names and frame."""
+        msg = JointState()
+        msg.name = list(self.joints)
+        msg.header.frame_id = self.frame_id
+        return msg
+
+    def fill(self, msg: JointState, s: np.ndarray, effort: float, stamp: int) -> JointState:
+        """Write state ``s``, actuator ``effort`` and ``stamp`` [ns] into ``msg``; return it."""
+        n = len(self.joints)
+        pos = [0.0] * n
+        vel = [0.0] * n
+        eff = [0.0] * n
+        for d, j in self.position:
+            pos[j] = float(s[d])
+        for d, j in self.velocity:
+            vel[j] = float(s[d])
+        eff[self.actuator] = float(effort)
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp, 1_000_000_000)
+        msg.position = array.array('d', pos)  # array.array skips rosidl's per-item checks
+        msg.velocity = array.array('d', vel)
+        msg.effort = array.array('d', eff)
+        return msg
+
+    def to_msg(self, s: np.ndarray, effort: float = 0.0, stamp: int = 0) -> JointState:
+        """A new JointState carrying state ``s`` (see ``fill``)."""
+        return self.fill(self.new_msg(), s, effort, stamp)
+
+    def from_msg(self, msg: JointState, out: np.ndarray | None = None) -> np.ndarray:
+        """The state vector of ``msg`` (joints in any order; extra joints ignored).
+
+        Raises ``MessageError`` for missing or duplicate joints, position / velocity arrays
+        whose length differs from ``name``'s, or a non-finite state coordinate.
+        """
+        names = msg.name
+        n = len(names)
+        pos, vel = msg.position, msg.velocity
+        if len(pos) != n or len(vel) != n:
+            raise MessageError(f'JointState has {n} names but {len(pos)} positions and '
+                               f'{len(vel)} velocities')
+        if names == self._joint_list:
+            where = range(len(self.joints))
+        else:
+            index = {name: i for i, name in enumerate(names)}
+            if len(index) != n:
+                raise MessageError(f'JointState has duplicate joint names {list(names)}'[:200])
+            missing = [j for j in self.joints if j not in index]
+            if missing:
+                raise MessageError(f'JointState lacks joints {missing} (got {list(names)})'[:200])
+            where = [index[j] for j in self.joints]
+        s = np.empty(self.dim) if out is None else out
+        for d, j in self.position:
+            s[d] = pos[where[j]]
+        for d, j in self.velocity:
+            s[d] = vel[where[j]]
+        for d in range(self.dim):
+            if not math.isfinite(s[d]):
+                raise MessageError(f'JointState: {self.problem.state_names[d]} is not finite '
+                                   f'({s[d]})')
+        return s
+
+
+def run_node(make_node: Callable[[], Node], args: list[str] | None = None,
+             executor: Callable[[], Executor] | None = None) -> int:
+    """Run one node the standard way and return the process exit code.
+
+    ``rclpy.init(args)`` -> ``make_node()`` -> spin (``executor()`` if given, else the
+    default single-threaded one) -> on Ctrl-C or external shutdown: exit 0; on a
+    configuration error (``SapgaError``, bad parameter): one line on stderr, exit 1 ->
+    always ``destroy_node`` and ``rclpy.try_shutdown``.  A main() is then one line:
+    ``return run_node(lambda: MyNode(), args)``.
+    """
+    rclpy.init(args=args)
+    node = None
+    code = 0
+    try:
+        node = make_node()
+        if executor is None:
+            rclpy.spin(node)
+        else:
+            ex = executor()
+            ex.add_node(node)
+            ex.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except (SapgaError, ParameterException) as exc:
+        print(f'error: {exc}', file=sys.stderr)
+        code = 1
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return code

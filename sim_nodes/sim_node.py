@@ -1,0 +1,331 @@
+"""Simulator node: one problem model behind the ROS 2 topic contract (SPEC 4).
+
+``SimNode`` wraps the same compiled ``mdp_step`` and ``goal_delta`` the batch evaluator
+uses, so a lockstep episode is bit-identical to ``Evaluator.episode`` (docs/ros_interface.md).
+
+Parameters (validated on every change; ``problem`` is read-only):
+
+==================  ========  ==============  ===============================================
+name                type      default         meaning
+==================  ========  ==============  ===============================================
+problem             string    per executable  msg_configs/<problem>.yaml (acrobot, pdip, ...)
+mode                string    realtime        ``realtime``: one MDP step per tick of wall time /
+                                              real_time_factor, zero-order hold on the last
+                                              command; ``lockstep``: one MDP step per command
+real_time_factor    double    1.0             > 0; sim time / wall time in realtime mode
+delta               double    episode.delta   goal difficulty: the episode ends in S_delta
+n_step              integer   episode.n_step  the episode ends after this many MDP steps
+auto_reset          bool      true            start a new episode after one ends
+max_episodes        integer   0               auto_reset starts no episode beyond this many
+                                              (0 = unlimited); the reset service still does
+republish_period    double    0.2             [s] lockstep: re-publish the waiting state
+                                              (same stamp) this often; 0 = never
+==================  ========  ==============  ===============================================
+
+Time: every published new state is one tick (``dt * substeps``, 0.05 s for the pendulums)
+of sim time later than the previous one (an MDP step, or the start of an episode), so
+stamps are distinct and monotonic.
+In lockstep the command answering an episode's final state starts the next episode (with
+auto_reset) instead of stepping, so each state gets exactly one command.
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, fields
+from typing import Any
+
+import numpy as np
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64, String
+from std_srvs.srv import Trigger
+
+from sapga_ros.errors import ConfigError
+from sapga_ros.nodes.common import (CLOCK_QOS, EVENT_QOS, QUIET_PUBLISHER, THROTTLE_S,
+                                    JointStateLayout, qos_profile, run_node, steady_clock,
+                                    topic_names)
+from sim_nodes.goal import goal_arrays, goal_delta
+from sim_nodes.models import model_module
+from sim_nodes.problem import load_problem
+
+MODES = ('realtime', 'lockstep')
+
+
+@dataclass(frozen=True)
+class SimSettings:
+    """The node's changeable parameters (see the module docstring)."""
+
+    mode: str
+    real_time_factor: float
+    delta: float
+    n_step: int
+    auto_reset: bool
+    max_episodes: int
+    republish_period: float
+
+
+def check_setting(name: str, value: Any) -> str | None:
+    """Why ``value`` is not acceptable for parameter ``name``, or None."""
+    if name == 'mode' and value not in MODES:
+        return f'mode: expected one of {", ".join(MODES)}, got {value!r}'
+    if name == 'real_time_factor' and not (math.isfinite(value) and value > 0):
+        return f'real_time_factor: expected a finite number > 0, got {value}'
+    if name == 'delta' and not (math.isfinite(value) and value >= 0):
+        return f'delta: expected a finite number >= 0, got {value}'
+    if name == 'n_step' and value < 1:
+        return f'n_step: expected an integer >= 1, got {value}'
+    if name == 'max_episodes' and value < 0:
+        return f'max_episodes: expected an integer >= 0 (0 = unlimited), got {value}'
+    if name == 'republish_period' and not (math.isfinite(value) and value >= 0):
+        return f'republish_period: expected a finite number of seconds >= 0, got {value}'
+    return None
+
+
+def _json_number(x: float) -> float | None:
+    """JSON has no infinity: non-finite numbers become null."""
+    return x if math.isfinite(x) else None
+
+
+class SimNode(Node):
+    """Simulates one problem; publishes its state, reward and episode events."""
+
+    def __init__(self, default_problem: str = 'acrobot', node_name: str = 'sim',
+                 **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        name = self.declare_parameter('problem', default_problem, ParameterDescriptor(
+            description='problem name: msg_configs/<problem>.yaml', read_only=True)).value
+        self.problem = problem = load_problem(name)
+        self._mdp_step = model_module(problem.model).mdp_step
+        self._p = problem.params()
+        self._best, self._inv_scale, self._fixed = goal_arrays(problem)
+        self._is_angle = problem.is_angle
+        self._s0 = problem.initial_state
+        self._limit = float(np.max(np.abs(problem.action_values)))  # actuator limit
+        self._tick_ns = round(problem.dt * problem.substeps * 1e9)  # sim time per tick
+        self._layout = JointStateLayout(problem)
+        self._declare_settings()
+        self.settings = self._read_settings()
+
+        topics = topic_names(problem)
+        qos = qos_profile(problem)
+        quiet = {'event_callbacks': QUIET_PUBLISHER}
+        self._state_pub = self.create_publisher(JointState, topics['state'], qos, **quiet)
+        self._reward_pub = self.create_publisher(Float64, topics['reward'], qos, **quiet)
+        self._event_pub = self.create_publisher(String, topics['event'], EVENT_QOS, **quiet)
+        self._clock_pub = self.create_publisher(Clock, '/clock', CLOCK_QOS, **quiet)
+        self._command_sub = self.create_subscription(Float64, topics['command'],
+                                                     self._on_command, qos)
+        self._reset_srv = self.create_service(Trigger, 'reset', self._on_reset)
+        self._step_timer = None
+        self._republish_timer = None
+
+        # episode state
+        self._s = self._s0.copy()
+        self._state_msg = self._layout.new_msg()
+        self._reward_msg = Float64()
+        self._clock_msg = Clock()
+        self._tick = -1                # sim time of the last published state, in ticks
+        self._episode = 0              # episodes started
+        self._step = 0                 # MDP steps in this episode
+        self._return = 0.0
+        self._delta_star = math.inf
+        self._effort = 0.0             # applied in the step that produced the state
+        self._command = 0.0            # realtime: held command
+        self._running = False          # an episode is in progress
+        self._restart_pending = False  # the next tick starts a new episode
+        self.total_steps = 0           # MDP steps simulated by this node
+        self.ignored_commands = 0      # NaN/inf commands
+        self.clamped_commands = 0      # out-of-range commands
+
+        self.add_on_set_parameters_callback(self._validate_parameters)
+        self.add_post_set_parameters_callback(self._apply_parameters)
+        self._configure_timers()
+        self._start_episode()
+        s = self.settings
+        self.get_logger().info(
+            f'{problem.name} sim: mode {s.mode}, delta {s.delta}, n_step {s.n_step}, '
+            f'actuator limit {self._limit}')
+
+    # parameters -------------------------------------------------------------------------
+
+    def _declare_settings(self) -> None:
+        p = self.problem
+        self.declare_parameter('mode', 'realtime', ParameterDescriptor(
+            description='realtime | lockstep'))
+        self.declare_parameter('real_time_factor', 1.0, ParameterDescriptor(
+            description='sim time / wall time in realtime mode (> 0)'))
+        self.declare_parameter('delta', p.default_delta, ParameterDescriptor(
+            description='goal difficulty: the episode ends in S_delta'))
+        self.declare_parameter('n_step', p.n_step, ParameterDescriptor(
+            description='MDP steps per episode at most'))
+        self.declare_parameter('auto_reset', True, ParameterDescriptor(
+            description='start a new episode after one ends'))
+        self.declare_parameter('max_episodes', 0, ParameterDescriptor(
+            description='auto_reset starts no episode beyond this many (0 = unlimited)'))
+        self.declare_parameter('republish_period', 0.2, ParameterDescriptor(
+            description='[s] lockstep: re-publish the waiting state this often (0 = never)'))
+
+    def _read_settings(self) -> SimSettings:
+        values = {f.name: self.get_parameter(f.name).value for f in fields(SimSettings)}
+        for key, value in values.items():
+            reason = check_setting(key, value)
+            if reason:
+                raise ConfigError(f'{self.get_name()}: parameter {reason}')
+        return SimSettings(**values)
+
+    def _validate_parameters(self, params: list[Parameter]) -> SetParametersResult:
+        for param in params:
+            reason = check_setting(param.name, param.value)
+            if reason:
+                return SetParametersResult(successful=False, reason=reason)
+        return SetParametersResult(successful=True)
+
+    def _apply_parameters(self, params: list[Parameter]) -> None:
+        old, self.settings = self.settings, self._read_settings()
+        if (old.mode, old.real_time_factor, old.republish_period) != (
+                self.settings.mode, self.settings.real_time_factor,
+                self.settings.republish_period):
+            self._configure_timers()
+        if self.settings.mode != old.mode:
+            self.get_logger().info(f'mode {self.settings.mode}')
+
+    def _configure_timers(self) -> None:
+        for timer in (self._step_timer, self._republish_timer):
+            if timer is not None:
+                self.destroy_timer(timer)
+        self._step_timer = self._republish_timer = None
+        s = self.settings
+        period = self._tick_ns * 1e-9 / s.real_time_factor
+        if s.mode == 'realtime':
+            self._step_timer = self.create_timer(period, self._on_step_timer,
+                                                 clock=steady_clock())
+        elif s.republish_period > 0:
+            self._republish_timer = self.create_timer(s.republish_period, self._on_republish,
+                                                      clock=steady_clock())
+
+    # callbacks ----------------------------------------------------------------------------
+
+    def _on_command(self, msg: Float64) -> None:
+        value = msg.data
+        if not math.isfinite(value):
+            self.ignored_commands += 1
+            self.get_logger().warning(f'ignoring non-finite command {value}',
+                                      throttle_duration_sec=THROTTLE_S)
+            return
+        if abs(value) > self._limit:
+            self.clamped_commands += 1
+            self.get_logger().warning(f'command {value} clamped to the actuator limit '
+                                      f'{self._limit}', throttle_duration_sec=THROTTLE_S)
+            value = math.copysign(self._limit, value)
+        if self.settings.mode == 'lockstep':
+            self._advance(value)
+        else:
+            self._command = value
+
+    def _on_step_timer(self) -> None:
+        self._advance(self._command)
+
+    def _on_republish(self) -> None:
+        self._state_pub.publish(self._state_msg)
+
+    def _on_reset(self, request: Trigger.Request, response: Trigger.Response
+                  ) -> Trigger.Response:
+        if self._running:
+            self._publish_event('reset', self._delta_of_state())
+        self._start_episode()
+        response.success = True
+        response.message = f'episode {self._episode} started'
+        return response
+
+    # the episode ----------------------------------------------------------------------------
+
+    def _advance(self, action: float) -> None:
+        """One tick: an MDP step, or the start of the next episode after one ended."""
+        if self._running:
+            self._step_once(action)
+        elif self._restart_pending:
+            self._start_episode()
+
+    def _step_once(self, action: float) -> None:
+        """Evaluator's episode loop body: step, count the reward, then test the goal."""
+        reward = self._mdp_step(self._s, action, self._p)
+        self._step += 1
+        self.total_steps += 1
+        self._return += reward
+        d = self._delta_of_state()
+        if d < self._delta_star:
+            self._delta_star = d
+        self._effort = action
+        self._tick += 1
+        self._reward_msg.data = reward
+        self._reward_pub.publish(self._reward_msg)
+        self._publish_state()
+        if d <= self.settings.delta:
+            self._end_episode('goal', d)
+        elif self._step >= self.settings.n_step:
+            self._end_episode('step_limit', d)
+
+    def _start_episode(self) -> None:
+        self._s[:] = self._s0
+        self._episode += 1
+        self._step = 0
+        self._return = 0.0
+        self._effort = 0.0
+        self._delta_star = d = self._delta_of_state()
+        self._running = True
+        self._restart_pending = False
+        self._tick += 1
+        self._publish_event('start', d)
+        self._publish_state()
+
+    def _end_episode(self, event: str, d: float) -> None:
+        self._running = False
+        s = self.settings
+        self._restart_pending = s.auto_reset and (
+            s.max_episodes == 0 or self._episode < s.max_episodes)
+        self._publish_event(event, d)
+
+    def _delta_of_state(self) -> float:
+        return goal_delta(self._s, self._best, self._inv_scale, self._fixed, self._is_angle)
+
+    # publishing ---------------------------------------------------------------------------
+
+    def _publish_state(self) -> None:
+        """Publish the state (and /clock) at the current tick."""
+        ns = self._tick * self._tick_ns
+        self._layout.fill(self._state_msg, self._s, self._effort, ns)
+        self._state_pub.publish(self._state_msg)
+        self._clock_msg.clock = self._state_msg.header.stamp
+        self._clock_pub.publish(self._clock_msg)
+
+    def _publish_event(self, event: str, d: float) -> None:
+        doc = {'event': event, 'episode': self._episode, 'step': self._step,
+               'return': self._return, 'delta': _json_number(d),
+               'delta_star': _json_number(self._delta_star),
+               'goal_delta': self.settings.delta,
+               'time': self._tick * self._tick_ns / 1e9}  # sim time of the state [s]
+        self._event_pub.publish(String(data=json.dumps(doc)))
+
+
+def main(args: list[str] | None = None, problem: str = 'acrobot',
+         node_name: str = 'sim') -> int:
+    """Run a simulator node (``problem`` is the default of the ``problem`` parameter)."""
+    return run_node(lambda: SimNode(default_problem=problem, node_name=node_name), args)
+
+
+def acrobot_main(args: list[str] | None = None) -> int:
+    """``ros2 run sapga_ros acrobot_sim``."""
+    return main(args, 'acrobot', 'acrobot_sim')
+
+
+def pdip_main(args: list[str] | None = None) -> int:
+    """``ros2 run sapga_ros pdip_sim`` (``-p problem:=pdip_single`` for the single pole)."""
+    return main(args, 'pdip', 'pdip_sim')
+
+
+if __name__ == '__main__':
+    raise SystemExit(acrobot_main())

@@ -1,0 +1,245 @@
+"""Fixtures and helpers for tests that run real rclpy nodes over real Fast DDS.
+
+Each test gets its own ROS 2 domain (a free ``ROS_DOMAIN_ID``, discovery limited to
+localhost) and its own ``rclpy.Context``, so tests, and other people's test runs on the
+same machine, never hear each other.  Nodes made with ``RosHarness.start`` spin on one
+background executor thread; ``RosHarness.spawn`` runs the package's executables as child
+processes in the same domain and stops them with Ctrl-C (SIGINT) at the end.
+
+Use in a test module::
+
+    @pytest.fixture
+    def ros(monkeypatch, tmp_path):
+        yield from isolated_ros(monkeypatch, tmp_path)
+
+    def test_something(ros):
+        node = ros.start(SimNode, params={'mode': 'lockstep'})
+        ros.wait_for(lambda: ..., what='...')
+"""
+from __future__ import annotations
+
+import ctypes
+import json
+import os
+import random
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+import traceback
+from pathlib import Path
+from typing import Any, Callable, Iterator
+
+import pytest
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64, Int32, String
+from std_srvs.srv import Trigger
+
+from sapga_ros.nodes.common import EVENT_QOS, stamp_ns, topic_names
+from sim_nodes.problem import Problem
+
+WAIT_S = 30.0  # [s] generous bound for any single wait: a failing test, not a timing check
+# Keep every sample in tests: readers must not lose a state if the test thread is slow.
+PROBE_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+
+
+def _port_free(port: int) -> bool:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        try:
+            sock.bind(('', port))
+        except OSError:
+            return False
+    return True
+
+
+def free_domain_id() -> int:
+    """A random ROS domain whose first Fast DDS participant port nobody on this host uses."""
+    rng = random.Random(os.getpid() * 1_000_003 + time.monotonic_ns())
+    for _ in range(200):
+        domain = rng.randint(1, 200)
+        base = 7400 + 250 * domain  # RTPS port mapping: PB + DG * domain
+        if all(_port_free(base + offset) for offset in (0, 1, 10, 11, 12, 13)):
+            return domain
+    raise RuntimeError('no free ROS domain id found')
+
+
+def _die_with_parent() -> None:
+    """In a child before exec: get SIGTERM if the test process dies (Linux), no orphans."""
+    try:
+        ctypes.CDLL('libc.so.6', use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+    except OSError:
+        pass
+
+
+def executable(name: str) -> Path:
+    """Where ``ros2 run sapga_ros <name>`` finds it, else the console script of this venv."""
+    try:
+        from ament_index_python.packages import PackageNotFoundError, get_package_prefix
+        try:
+            path = Path(get_package_prefix('sapga_ros')) / 'lib' / 'sapga_ros' / name
+            if path.is_file() and os.access(path, os.X_OK):
+                return path
+        except PackageNotFoundError:
+            pass
+    except ImportError:
+        pass
+    return Path(sys.prefix) / 'bin' / name
+
+
+class RosHarness:
+    """An isolated ROS 2 domain with an executor thread and child processes."""
+
+    def __init__(self, domain_id: int, tmp_dir: Path) -> None:
+        self.domain_id = domain_id
+        self.tmp_dir = tmp_dir
+        self.env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id),
+                        ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', PYTHONUNBUFFERED='1')
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, domain_id=domain_id)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.nodes: list[Node] = []
+        self.children: list[tuple[subprocess.Popen, Path]] = []
+        self._thread = threading.Thread(target=self._spin, daemon=True)
+        self._thread.start()
+
+    def _spin(self) -> None:
+        try:
+            self.executor.spin()
+        except Exception:  # noqa: BLE001 - reported, and the test then times out
+            if self.context.ok():
+                traceback.print_exc()
+
+    def start(self, cls: Callable[..., Node], params: dict[str, Any] | None = None,
+              **kwargs: Any) -> Any:
+        """Make a node of class ``cls`` in this domain with parameter overrides; spin it."""
+        overrides = [Parameter(k, value=v) for k, v in (params or {}).items()]
+        node = cls(context=self.context, parameter_overrides=overrides, **kwargs)
+        self.nodes.append(node)
+        self.executor.add_node(node)
+        return node
+
+    def wait_for(self, predicate: Callable[[], Any], what: str = 'condition',
+                 timeout: float = WAIT_S) -> Any:
+        """Poll ``predicate`` until it returns something truthy; fail after ``timeout``."""
+        deadline = time.monotonic() + timeout
+        while True:
+            value = predicate()
+            if value:
+                return value
+            if time.monotonic() > deadline:
+                raise AssertionError(f'timed out waiting for {what}{self._child_logs()}')
+            time.sleep(0.01)
+
+    def call(self, client: Any, request: Any, timeout: float = WAIT_S) -> Any:
+        """Call a service from the test thread (the executor thread runs the client)."""
+        self.wait_for(client.service_is_ready, f'service {client.srv_name}', timeout)
+        future = client.call_async(request)
+        self.wait_for(future.done, f'a response from {client.srv_name}', timeout)
+        return future.result()
+
+    def spawn(self, exe: str, *args: str) -> subprocess.Popen:
+        """Run a package executable in this domain; its output goes to a log file."""
+        log = self.tmp_dir / f'{exe}-{len(self.children)}.log'
+        with open(log, 'wb') as out:
+            proc = subprocess.Popen([str(executable(exe)), *args], env=self.env, stdout=out,
+                                    stderr=subprocess.STDOUT, preexec_fn=_die_with_parent)
+        self.children.append((proc, log))
+        return proc
+
+    def stop(self, proc: subprocess.Popen, timeout: float = 15.0) -> int:
+        """Ctrl-C a child and wait for it; kill it if it does not stop. Its exit code."""
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+            try:
+                proc.wait(timeout)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+        return proc.returncode
+
+    def _child_logs(self) -> str:
+        text = ''
+        for proc, log in self.children:
+            tail = log.read_text(errors='replace')[-2000:] if log.exists() else ''
+            text += f'\n--- {log.name} (exit {proc.poll()}) ---\n{tail}'
+        return text
+
+    def close(self) -> None:
+        for proc, _ in self.children:
+            self.stop(proc)
+        self.executor.shutdown(timeout_sec=5.0)
+        self._thread.join(timeout=5.0)
+        for node in self.nodes:
+            node.destroy_node()
+        self.context.try_shutdown()
+
+
+def isolated_ros(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> Iterator[RosHarness]:
+    """Body of a ``ros`` fixture: an isolated ROS 2 domain for one test (``RosHarness``)."""
+    domain = free_domain_id()
+    monkeypatch.setenv('ROS_DOMAIN_ID', str(domain))
+    monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    harness = RosHarness(domain, tmp_path)
+    try:
+        yield harness
+    finally:
+        harness.close()
+
+
+class Probe(Node):
+    """A test node on a problem's topics: records what it hears, publishes what it is told.
+
+    ``states`` maps stamp [ns] -> JointState (re-publishes collapse), in arrival order;
+    ``events`` are the parsed episode events; ``rewards``, ``commands``, ``indices`` lists.
+    """
+
+    def __init__(self, problem: Problem, node_name: str = 'probe', **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        topics = topic_names(problem)
+        self.states: dict[int, JointState] = {}
+        self.events: list[dict] = []
+        self.rewards: list[float] = []
+        self.commands: list[float] = []
+        self.indices: list[int] = []
+        self.lock = threading.Lock()
+        self.create_subscription(JointState, topics['state'], self._on_state, PROBE_QOS)
+        self.create_subscription(String, topics['event'], self._on_event, EVENT_QOS)
+        self.create_subscription(Float64, topics['reward'],
+                                 lambda m: self.rewards.append(m.data), PROBE_QOS)
+        self.create_subscription(Float64, topics['command'],
+                                 lambda m: self.commands.append(m.data), PROBE_QOS)
+        self.create_subscription(Int32, topics['exemplar'],
+                                 lambda m: self.indices.append(m.data), PROBE_QOS)
+        self.command_pub = self.create_publisher(Float64, topics['command'], PROBE_QOS)
+        self.state_pub = self.create_publisher(JointState, topics['state'], PROBE_QOS)
+        self.reset = self.create_client(Trigger, 'reset')
+        self.load_policy = self.create_client(Trigger, 'load_policy')
+
+    def _on_state(self, msg: JointState) -> None:
+        with self.lock:
+            self.states.setdefault(stamp_ns(msg), msg)
+
+    def _on_event(self, msg: String) -> None:
+        with self.lock:
+            self.events.append(json.loads(msg.data))
+
+    def latest_state(self) -> JointState | None:
+        with self.lock:
+            return next(reversed(self.states.values()), None)
+
+    def event(self, kind: str, episode: int) -> dict | None:
+        """The first event ``kind`` of ``episode`` heard so far, or None."""
+        with self.lock:
+            return next((e for e in self.events
+                         if e['event'] == kind and e['episode'] == episode), None)
+
+    def end_of(self, episode: int) -> dict | None:
+        """The goal / step_limit event that ended ``episode``, or None."""
+        return self.event('goal', episode) or self.event('step_limit', episode)

@@ -1,0 +1,196 @@
+"""Policy node (sapga_ros/nodes/policy_node.py) over real Fast DDS: state validation, one
+answer per stamp, policy files and the load_policy -> get_policy hand-off."""
+from __future__ import annotations
+
+import array
+import json
+import math
+
+import numpy as np
+import pytest
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from std_srvs.srv import Trigger
+
+from ros_helpers import Probe, isolated_ros
+from sapga_ros.nodes.common import JointStateLayout
+from sapga_ros.nodes.policy_node import PolicyNode
+from sapga_ros.policy import ExemplarPolicy
+from sapga_ros.selector import distances
+from sim_nodes.problem import load_problem
+
+
+@pytest.fixture(scope='module')
+def acrobot():
+    return load_problem('acrobot')
+
+
+@pytest.fixture
+def ros(monkeypatch, tmp_path):
+    """An isolated ROS 2 domain with an executor thread (tests/ros_helpers.py)."""
+    yield from isolated_ros(monkeypatch, tmp_path)
+
+
+def random_policy(problem, seed: int, size: int = 60) -> ExemplarPolicy:
+    rng = np.random.default_rng(seed)
+    return ExemplarPolicy(problem, rng.uniform(problem.low, problem.high, (size, problem.dim)),
+                          rng.integers(0, 3, size), meta={'seed': seed})
+
+
+def expected_action(policy: ExemplarPolicy, state: np.ndarray) -> tuple[int, float]:
+    """The nearest exemplar by the selector's distance, computed independently of the node."""
+    p = policy.problem
+    j = int(np.argmin(distances(state, policy.states, p.ranges, p.is_angle)))
+    return j, float(policy.action_values[j])
+
+
+class FakeTrainer(Node):
+    """A get_policy Trigger server answering with queued (success, message) pairs in turn."""
+
+    def __init__(self, answers: list[tuple[bool, str]], **kwargs) -> None:
+        super().__init__('fake_trainer', **kwargs)
+        self.answers = list(answers)
+        self.calls = 0
+        self.service = self.create_service(Trigger, 'get_policy', self._on_get_policy)
+
+    def _on_get_policy(self, request: Trigger.Request, response: Trigger.Response
+                       ) -> Trigger.Response:
+        self.calls += 1
+        response.success, response.message = self.answers.pop(0)
+        return response
+
+
+def connected(ros, probe: Probe, pol: PolicyNode) -> None:
+    ros.wait_for(lambda: pol._state_sub.get_publisher_count() >= 1
+                 and pol._command_pub.get_subscription_count() >= 1
+                 and pol._index_pub.get_subscription_count() >= 1, 'discovery')
+
+
+def test_bad_state_messages_are_skipped_and_good_ones_answered_once(ros, acrobot, tmp_path):
+    """Wrong lengths, names or NaN are skipped; each good stamp gets exactly one answer."""
+    policy = random_policy(acrobot, 1)
+    policy.save(tmp_path / 'a.json')
+    layout = JointStateLayout(acrobot)
+    probe = ros.start(Probe, problem=acrobot)
+    pol = ros.start(PolicyNode, params={'policy_file': str(tmp_path / 'a.json')})
+    connected(ros, probe, pol)
+    rng = np.random.default_rng(5)
+    s1, s2 = rng.uniform(acrobot.low, acrobot.high, (2, acrobot.dim))
+
+    short = layout.to_msg(s1, 0.0, 1)
+    short.position = array.array('d', [1.0])
+    renamed = layout.to_msg(s1, 0.0, 2)
+    renamed.name = ['shoulder', 'wrist']
+    twice = layout.to_msg(s1, 0.0, 3)
+    twice.name = ['elbow', 'elbow']
+    nan = layout.to_msg(s1, 0.0, 4)
+    nan.velocity = array.array('d', [math.nan, 0.0])
+    inf = layout.to_msg(s1, 0.0, 5)
+    inf.position = array.array('d', [0.0, math.inf])
+    good = layout.to_msg(s1, 0.0, 6)
+    reordered = layout.to_msg(s2, 0.0, 7)  # joints in another order: still a valid state
+    reordered.name = list(reversed(reordered.name))
+    for field in ('position', 'velocity', 'effort'):
+        setattr(reordered, field, array.array('d', reversed(getattr(reordered, field))))
+    for msg in (short, renamed, twice, nan, inf, good, good, reordered):
+        probe.state_pub.publish(msg)
+
+    ros.wait_for(lambda: pol.answered == 2, 'two answers')
+    assert pol.rejected == 5
+    ros.wait_for(lambda: len(probe.indices) == 2 and len(probe.commands) == 2, 'the commands')
+    expected = [expected_action(policy, s1), expected_action(policy, s2)]
+    assert probe.indices == [j for j, _ in expected]
+    assert probe.commands == [a for _, a in expected]
+
+
+def test_without_a_policy_nothing_is_published_until_one_is_set(ros, acrobot, tmp_path):
+    """With no policy a state is not answered; once a policy is set, its re-publish is."""
+    layout = JointStateLayout(acrobot)
+    probe = ros.start(Probe, problem=acrobot)
+    pol = ros.start(PolicyNode)
+    connected(ros, probe, pol)
+    state = layout.to_msg(acrobot.initial_state, 0.0, 0)
+    probe.state_pub.publish(state)
+    ros.wait_for(lambda: pol.unanswered == 1, 'the state seen')
+    assert pol.answered == 0 and pol.active is None
+    policy = random_policy(acrobot, 2)
+    policy.save(tmp_path / 'p.json')
+    assert pol.set_parameters([Parameter('policy_file', value=str(tmp_path / 'p.json'))]
+                              )[0].successful
+    probe.state_pub.publish(state)  # the lockstep sim's re-publish, same stamp
+    ros.wait_for(lambda: probe.commands, 'the command')
+    assert (probe.indices[0], probe.commands[0]) == expected_action(
+        policy, acrobot.initial_state)
+
+
+def test_bad_policy_files_are_refused_with_the_reason_and_the_old_policy_kept(
+        ros, acrobot, tmp_path):
+    """Wrong-problem, malformed, non-finite and missing files are refused; the policy stays."""
+    good = tmp_path / 'good.json'
+    random_policy(acrobot, 3).save(good)
+    pol = ros.start(PolicyNode, params={'policy_file': str(good)})
+    active = pol.active
+    assert active is not None and len(active) == 60
+    pdip = load_problem('pdip')
+    random_policy(pdip, 4).save(tmp_path / 'pdip.json')
+    (tmp_path / 'broken.json').write_text('{"format": "sapga-policy/1", "exemplars": [')
+    doc = random_policy(acrobot, 5).to_document()
+    doc['exemplars'][3]['state'][2] = 1e999  # json.dumps writes Infinity
+    (tmp_path / 'inf.json').write_text(json.dumps(doc))
+    doc = random_policy(acrobot, 5).to_document()
+    doc['exemplars'][0]['action'] = 1.0
+    (tmp_path / 'action.json').write_text(json.dumps(doc))
+    cases = [('pdip.json', "policy is for 'pdip'"), ('broken.json', 'malformed JSON'),
+             ('inf.json', 'Infinity'), ('action.json', 'exemplars[0].action'),
+             ('missing.json', 'cannot read')]
+    for name, words in cases:
+        result = pol.set_parameters([Parameter('policy_file', value=str(tmp_path / name))])[0]
+        assert not result.successful and words in result.reason, (name, result.reason)
+        assert pol.active is active
+        assert pol.get_parameter('policy_file').value == str(good)
+    other = tmp_path / 'other.json'
+    random_policy(acrobot, 6, size=80).save(other)
+    assert pol.set_parameters([Parameter('policy_file', value=str(other))])[0].successful
+    assert pol.active is not active and len(pol.active) == 80
+    assert pol.active.source == str(other)
+
+
+def test_a_bad_policy_file_at_start_leaves_the_node_running_without_a_policy(ros, tmp_path):
+    """A node started with a broken policy file keeps running, with no policy loaded."""
+    (tmp_path / 'broken.json').write_text('not json')
+    pol = ros.start(PolicyNode, params={'policy_file': str(tmp_path / 'broken.json')})
+    assert pol.active is None
+    assert not pol.set_parameters([Parameter('load_timeout', value=0.0)])[0].successful
+
+
+def test_load_policy_fetches_from_the_trainer_service_and_validates(ros, acrobot, tmp_path):
+    """load_policy calls get_policy; bad answers are refused with the reason, a good one swaps."""
+    first = tmp_path / 'first.json'
+    random_policy(acrobot, 7).save(first)
+    good = random_policy(acrobot, 8, size=90)
+    trainer = ros.start(FakeTrainer, answers=[
+        (True, random_policy(load_problem('pdip'), 9).to_json()),
+        (True, '{"format": "sapga-policy/1",'),
+        (False, 'no policy trained yet'),
+        (True, good.to_json())])
+    probe = ros.start(Probe, problem=acrobot)
+    pol = ros.start(PolicyNode, params={'policy_file': str(first)})
+    active = pol.active
+    for words in ("policy is for 'pdip'", 'malformed JSON', 'no policy trained yet'):
+        response = ros.call(probe.load_policy, Trigger.Request())
+        assert not response.success and words in response.message, response.message
+        assert pol.active is active
+    response = ros.call(probe.load_policy, Trigger.Request())
+    assert response.success and '90 exemplars' in response.message
+    assert trainer.calls == 4
+    assert np.array_equal(pol.active.policy.states, good.states)
+    assert np.array_equal(pol.active.policy.actions, good.actions)
+
+
+def test_load_policy_without_a_trainer_fails_with_the_reason(ros, acrobot):
+    """With no trainer service, load_policy answers failure after load_timeout, not a hang."""
+    probe = ros.start(Probe, problem=acrobot)
+    pol = ros.start(PolicyNode, params={'trainer_service': 'no_trainer', 'load_timeout': 0.3})
+    response = ros.call(probe.load_policy, Trigger.Request())
+    assert not response.success and 'no_trainer is not available' in response.message
+    assert pol.active is None
