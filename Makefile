@@ -6,10 +6,8 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 export AMENT_PREFIX_PATH := $(abspath $(VENV))
 export PYTHONDONTWRITEBYTECODE := 1
-# numba's on-disk cache, keyed by the kernel sources so an edit never loads stale code
-KERNEL_HASH := $(shell cat sim_nodes/*.py sim_nodes/models/*.py sapga_ros/selector.py \
-	sapga_ros/kernels.py sapga_ros/qlearning.py 2>/dev/null | md5sum | cut -c1-12)
-export NUMBA_CACHE_DIR := $(abspath .cache/numba-$(KERNEL_HASH))
+# numba's on-disk cache: sim_nodes/jit.py keys ~/.cache/sapga_ros/numba-<digest> by the
+# kernel sources, so it is shared between checkouts and never stale
 OUT ?= out
 
 .PHONY: demo test bench venv clean

@@ -88,15 +88,36 @@ class ExemplarPolicy:
 
 
 def _reject_constant(name: str) -> float:
-    raise ValueError(f'non-finite number {name} is not allowed')
+    """NaN/Infinity literals parse to floats; validation then names the field holding one."""
+    return float(name)
+
+
+def excerpt(value: Any, limit: int = 60) -> str:
+    """A short repr of a (possibly huge, hostile) value for an error message."""
+    text = repr(value)
+    return text if len(text) <= limit else text[:limit] + '...'
+
+
+def _check_finite_tree(value: Any, where: str, depth: int = 0) -> None:
+    """Every number inside ``value`` (free-form meta) is finite."""
+    if depth > 50:
+        raise PolicyFileError(f'{where}: nested too deeply')
+    if isinstance(value, float) and not math.isfinite(value):
+        raise PolicyFileError(f'{where}: not a finite number ({json.dumps(value)})')
+    if isinstance(value, dict):
+        for k, v in value.items():
+            _check_finite_tree(v, f'{where}.{k}', depth + 1)
+    elif isinstance(value, list):
+        for i, v in enumerate(value):
+            _check_finite_tree(v, f'{where}[{i}]', depth + 1)
 
 
 def _finite(value: Any, where: str) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise PolicyFileError(f'{where}: expected a number, got {json.dumps(value)[:40]}')
+        raise PolicyFileError(f'{where}: expected a number, got {excerpt(value, 40)}')
     number = float(value)
     if not math.isfinite(number):
-        raise PolicyFileError(f'{where}: not a finite number ({value})')
+        raise PolicyFileError(f'{where}: not a finite number ({json.dumps(number)})')
     return number
 
 
@@ -109,7 +130,8 @@ def policy_from_document(doc: Any, problem: str | Problem | None = None,
         if key not in doc:
             raise PolicyFileError(f'{source}: missing field {key!r}')
     if doc['format'] != FORMAT:
-        raise PolicyFileError(f'{source}: format: expected {FORMAT!r}, got {doc["format"]!r}')
+        raise PolicyFileError(f'{source}: format: expected {FORMAT!r}, '
+                              f'got {excerpt(doc["format"])}')
     if not isinstance(doc['problem'], str):
         raise PolicyFileError(f'{source}: problem: expected a string')
     try:
@@ -122,7 +144,7 @@ def policy_from_document(doc: Any, problem: str | Problem | None = None,
             raise PolicyFileError(f'{source}: problem: policy is for {prob.name!r}, '
                                   f'expected {want!r}')
     if doc['style'] not in STYLES:
-        raise PolicyFileError(f'{source}: style: {doc["style"]!r} is not supported '
+        raise PolicyFileError(f'{source}: style: {excerpt(doc["style"])} is not supported '
                               f'(supported: {", ".join(STYLES)})')
     if doc['state_names'] != list(prob.state_names):
         raise PolicyFileError(f'{source}: state_names: expected {list(prob.state_names)}, '
@@ -159,6 +181,7 @@ def policy_from_document(doc: Any, problem: str | Problem | None = None,
     meta = doc.get('meta', {})
     if not isinstance(meta, dict):
         raise PolicyFileError(f'{source}: meta: expected an object')
+    _check_finite_tree(meta, f'{source}: meta')
     return ExemplarPolicy(prob, states, acts, meta=meta, style=doc['style'])
 
 
@@ -179,7 +202,7 @@ def policy_from_json(text: str | bytes, problem: str | Problem | None = None,
     try:
         doc = json.loads(text, parse_constant=_reject_constant)
     except json.JSONDecodeError as exc:
-        raise PolicyFileError(f'{source}: malformed JSON ({exc.msg} at line {exc.lineno} '
+        raise PolicyFileError(f'{source}: malformed JSON ({exc.msg}, line {exc.lineno} '
                               f'column {exc.colno})') from exc
     except ValueError as exc:
         raise PolicyFileError(f'{source}: {exc}') from exc

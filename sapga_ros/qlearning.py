@@ -27,10 +27,12 @@ from sapga_ros.checkpoint import load_checkpoint, save_checkpoint
 from sapga_ros.errors import CheckpointError, PolicyFileError
 from sapga_ros.evaluation import Episode
 from sapga_ros.fileio import write_atomic
-from sapga_ros.policy import MAX_POLICY_BYTES, _finite, _reject_constant
+from sapga_ros.policy import (MAX_POLICY_BYTES, _check_finite_tree, _finite, _reject_constant,
+                              excerpt)
 from sim_nodes.goal import goal_arrays, goal_delta
 from sim_nodes.jit import kernel
-from sim_nodes.models import model_module
+from sim_nodes.models import model_id
+from sim_nodes.models.dispatch import step_lanes
 from sim_nodes.problem import Problem, load_problem
 
 FORMAT = 'sapga-qtable/1'
@@ -71,102 +73,87 @@ def greedy(q, cell):
     return best
 
 
-def make_ql_kernels(model: str):
-    """Compiled learning and greedy-episode loops of ``model``."""
-    mdp_step_lanes = model_module(model).mdp_step_lanes
+@kernel
+def learn(model, q, visited, rng, s0, p, actions, idx, low, width, tiles, best, inv_scale,
+          fixed, is_angle, delta, n_step, epsilon, eta, gamma, budget, ep_return,
+          ep_steps, ep_dstar):
+    """Run whole episodes of model number ``model`` until ``budget`` steps are spent; per-episode measures out.
 
-    @kernel
-    def learn(q, visited, rng, s0, p, actions, idx, low, width, tiles, best, inv_scale,
-              fixed, is_angle, delta, n_step, epsilon, eta, gamma, budget, ep_return,
-              ep_steps, ep_dstar):
-        """Run whole episodes until ``budget`` steps are spent; per-episode measures out.
-
-        Returns (steps simulated, episodes run)."""
-        dim = s0.shape[0]
-        S = np.empty((dim, 1))
-        a_buf = np.zeros(1)
-        r_buf = np.zeros(1)
-        n_act = actions.shape[0]
-        steps = 0
-        episodes = 0
-        while steps < budget and episodes < ep_return.shape[0]:
-            S[:, 0] = s0
-            s = S[:, 0]
-            cell = cell_index(s, idx, low, width, tiles)
-            total = 0.0
-            dstar = goal_delta(s, best, inv_scale, fixed, is_angle)
-            t = 0
-            while t < n_step:
-                if xorshift_uniform(rng) < epsilon:
-                    a = min(int(xorshift_uniform(rng) * n_act), n_act - 1)
-                else:
-                    a = greedy(q, cell)
-                a_buf[0] = actions[a]
-                mdp_step_lanes(S, a_buf, p, 1, r_buf)
-                r = r_buf[0]
-                total += r
-                t += 1
-                d = goal_delta(s, best, inv_scale, fixed, is_angle)
-                if d < dstar:
-                    dstar = d
-                nxt = cell_index(s, idx, low, width, tiles)
-                target = r
-                if d > delta:                      # not terminal: bootstrap
-                    target += gamma * q[nxt, greedy(q, nxt)]
-                q[cell, a] += eta * (target - q[cell, a])
-                visited[cell] = True
-                cell = nxt
-                if d <= delta:
-                    break
-            ep_return[episodes] = total
-            ep_steps[episodes] = t
-            ep_dstar[episodes] = dstar
-            episodes += 1
-            steps += t
-        return steps, episodes
-
-    @kernel
-    def greedy_episode(q, s0, p, actions, idx, low, width, tiles, best, inv_scale, fixed,
-                       is_angle, delta, n_step, tr_state, tr_cell, tr_reward):
-        dim = s0.shape[0]
-        S = np.empty((dim, 1))
+    Returns (steps simulated, episodes run)."""
+    dim = s0.shape[0]
+    S = np.empty((dim, 1))
+    a_buf = np.zeros(1)
+    r_buf = np.zeros(1)
+    n_act = actions.shape[0]
+    steps = 0
+    episodes = 0
+    while steps < budget and episodes < ep_return.shape[0]:
         S[:, 0] = s0
         s = S[:, 0]
-        a_buf = np.zeros(1)
-        r_buf = np.zeros(1)
-        tr_state[0, :] = s
+        cell = cell_index(s, idx, low, width, tiles)
         total = 0.0
         dstar = goal_delta(s, best, inv_scale, fixed, is_angle)
         t = 0
-        reached = False
         while t < n_step:
-            cell = cell_index(s, idx, low, width, tiles)
-            a = greedy(q, cell)
+            if xorshift_uniform(rng) < epsilon:
+                a = min(int(xorshift_uniform(rng) * n_act), n_act - 1)
+            else:
+                a = greedy(q, cell)
             a_buf[0] = actions[a]
-            mdp_step_lanes(S, a_buf, p, 1, r_buf)
-            total += r_buf[0]
-            tr_cell[t] = a
-            tr_reward[t] = r_buf[0]
+            step_lanes(model, S, a_buf, p, 1, r_buf)
+            r = r_buf[0]
+            total += r
             t += 1
-            tr_state[t, :] = s
             d = goal_delta(s, best, inv_scale, fixed, is_angle)
             if d < dstar:
                 dstar = d
+            nxt = cell_index(s, idx, low, width, tiles)
+            target = r
+            if d > delta:                      # not terminal: bootstrap
+                target += gamma * q[nxt, greedy(q, nxt)]
+            q[cell, a] += eta * (target - q[cell, a])
+            visited[cell] = True
+            cell = nxt
             if d <= delta:
-                reached = True
                 break
-        return total, t, dstar, reached
+        ep_return[episodes] = total
+        ep_steps[episodes] = t
+        ep_dstar[episodes] = dstar
+        episodes += 1
+        steps += t
+    return steps, episodes
 
-    return learn, greedy_episode
-
-
-_KERNELS: dict = {}
-
-
-def ql_kernels(model: str):
-    if model not in _KERNELS:
-        _KERNELS[model] = make_ql_kernels(model)
-    return _KERNELS[model]
+@kernel
+def greedy_episode(model, q, s0, p, actions, idx, low, width, tiles, best, inv_scale, fixed,
+                   is_angle, delta, n_step, tr_state, tr_cell, tr_reward):
+    dim = s0.shape[0]
+    S = np.empty((dim, 1))
+    S[:, 0] = s0
+    s = S[:, 0]
+    a_buf = np.zeros(1)
+    r_buf = np.zeros(1)
+    tr_state[0, :] = s
+    total = 0.0
+    dstar = goal_delta(s, best, inv_scale, fixed, is_angle)
+    t = 0
+    reached = False
+    while t < n_step:
+        cell = cell_index(s, idx, low, width, tiles)
+        a = greedy(q, cell)
+        a_buf[0] = actions[a]
+        step_lanes(model, S, a_buf, p, 1, r_buf)
+        total += r_buf[0]
+        tr_cell[t] = a
+        tr_reward[t] = r_buf[0]
+        t += 1
+        tr_state[t, :] = s
+        d = goal_delta(s, best, inv_scale, fixed, is_angle)
+        if d < dstar:
+            dstar = d
+        if d <= delta:
+            reached = True
+            break
+    return total, t, dstar, reached
 
 
 @dataclass
@@ -190,13 +177,12 @@ class QTable:
         """The greedy policy's episode from the initial state."""
         pr = self.problem
         n_step = pr.n_step if n_step is None else n_step
-        _, greedy_episode = ql_kernels(pr.model)
         tr_state = np.zeros((n_step + 1, pr.dim))
         tr_a = np.zeros(n_step, dtype=np.int64)
         tr_r = np.zeros(n_step)
         ret, steps, dstar, reached = greedy_episode(
-            self.q, pr.initial_state, pr.params(), pr.action_values, *self.tiling,
-            *goal_arrays(pr), pr.is_angle, delta, n_step, tr_state, tr_a, tr_r)
+            model_id(pr.model), self.q, pr.initial_state, pr.params(), pr.action_values,
+            *self.tiling, *goal_arrays(pr), pr.is_angle, delta, n_step, tr_state, tr_a, tr_r)
         a = tr_a[:steps]
         return Episode(tr_state[:steps + 1].copy(), pr.action_values[a], np.full(steps, -1),
                        tr_r[:steps].copy(), float(ret), int(steps), float(dstar), bool(reached))
@@ -220,6 +206,8 @@ class QTable:
 
 def qtable_from_document(doc: dict, source: str) -> QTable:
     """Validate a parsed ``sapga-qtable/1`` document."""
+    if not isinstance(doc, dict):
+        raise PolicyFileError(f'{source}: expected a JSON object at the top level')
     for key in ('problem', 'state_names', 'actions', 'state_indices', 'tiles_per_dim', 'q'):
         if key not in doc:
             raise PolicyFileError(f'{source}: missing field {key!r}')
@@ -229,7 +217,8 @@ def qtable_from_document(doc: dict, source: str) -> QTable:
         raise PolicyFileError(f'{source}: problem: {exc}') from exc
     if doc['state_names'] != list(pr.state_names):
         raise PolicyFileError(f'{source}: state_names: expected {list(pr.state_names)}')
-    if [_finite(a, f'{source}: actions') for a in doc['actions']] != list(pr.actions):
+    if not isinstance(doc['actions'], list) or \
+            [_finite(a, f'{source}: actions') for a in doc['actions']] != list(pr.actions):
         raise PolicyFileError(f'{source}: actions: expected {list(pr.actions)}')
     if doc['state_indices'] != list(pr.ql_state_indices) or \
             doc['tiles_per_dim'] != pr.ql_tiles_per_dim:
@@ -240,14 +229,17 @@ def qtable_from_document(doc: dict, source: str) -> QTable:
     if not isinstance(doc['q'], dict):
         raise PolicyFileError(f'{source}: q: expected an object of cell: [values]')
     for key, values in doc['q'].items():
-        if not key.isdigit() or int(key) >= cells:
-            raise PolicyFileError(f'{source}: q: cell {key!r} is not in 0..{cells - 1}')
+        if not (key.isascii() and key.isdigit()) or int(key) >= cells:
+            raise PolicyFileError(f'{source}: q: cell {excerpt(key)} is not in 0..{cells - 1}')
         if not isinstance(values, list) or len(values) != len(pr.actions):
             raise PolicyFileError(f'{source}: q[{key}]: expected {len(pr.actions)} numbers')
         q[int(key)] = [_finite(v, f'{source}: q[{key}]') for v in values]
         visited[int(key)] = True
     meta = doc.get('meta', {})
-    return QTable(pr, q, visited, meta if isinstance(meta, dict) else {})
+    if not isinstance(meta, dict):
+        raise PolicyFileError(f'{source}: meta: expected an object')
+    _check_finite_tree(meta, f'{source}: meta')
+    return QTable(pr, q, visited, meta)
 
 
 def parse_json(data: bytes, source: str):
@@ -260,7 +252,7 @@ def parse_json(data: bytes, source: str):
     except UnicodeDecodeError as exc:
         raise PolicyFileError(f'{source}: not UTF-8 text (byte {exc.start})') from exc
     except json.JSONDecodeError as exc:
-        raise PolicyFileError(f'{source}: malformed JSON ({exc.msg} at line {exc.lineno} '
+        raise PolicyFileError(f'{source}: malformed JSON ({exc.msg}, line {exc.lineno} '
                               f'column {exc.colno})') from exc
     except (ValueError, RecursionError) as exc:
         raise PolicyFileError(f'{source}: {exc}') from exc
@@ -271,7 +263,6 @@ def train_ql(config, progress=None) -> 'object':
     from sapga_ros.train import TrainResult
     pr = load_problem(config.problem)
     delta = float(pr.default_delta if config.delta is None else config.delta)
-    learn, _ = ql_kernels(pr.model)
     cells = pr.ql_tiles_per_dim ** len(pr.ql_state_indices)
     settings = {'problem': pr.name, 'method': 'ql', 'delta': delta, 'seed': config.seed,
                 'epsilon': pr.ql_epsilon, 'eta': pr.ql_eta}
@@ -305,8 +296,8 @@ def train_ql(config, progress=None) -> 'object':
     idx = np.array(pr.ql_state_indices, dtype=np.int64)
     low = pr.low[idx]
     width = (pr.high[idx] - low) / pr.ql_tiles_per_dim
-    consts = (pr.initial_state, pr.params(), pr.action_values, idx, low, width,
-              pr.ql_tiles_per_dim, *goal_arrays(pr), pr.is_angle, delta, pr.n_step,
+    consts = (model_id(pr.model), pr.initial_state, pr.params(), pr.action_values, idx, low,
+              width, pr.ql_tiles_per_dim, *goal_arrays(pr), pr.is_angle, delta, pr.n_step,
               pr.ql_epsilon, pr.ql_eta, 1.0)
     max_eps = CHUNK_STEPS  # an episode has at least one step
     ep_r, ep_s, ep_d = np.empty(max_eps), np.empty(max_eps, np.int64), np.empty(max_eps)
@@ -315,7 +306,7 @@ def train_ql(config, progress=None) -> 'object':
     chunks = 0
     while steps < config.steps:
         budget = min(CHUNK_STEPS, config.steps - steps)
-        done, n_ep = learn(q, visited, rng, *consts, budget, ep_r, ep_s, ep_d)
+        done, n_ep = learn(consts[0], q, visited, rng, *consts[1:], budget, ep_r, ep_s, ep_d)
         steps += int(done)
         episodes += int(n_ep)
         if n_ep:

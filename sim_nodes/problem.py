@@ -21,6 +21,7 @@ import yaml
 from sapga_ros.errors import ConfigError, UnknownProblemError
 
 CONFIG_ENV = 'SAPGA_CONFIG_DIR'
+_FLOAT_RE = re.compile(r'^\s*[+-]?(\d+(\.\d*)?|\.\d+)([eE][+-]?\d+)?\s*$')
 _PI_RE = re.compile(r'^\s*([+-]?)\s*(\d+(?:\.\d*)?|\.\d+)?\s*\*?\s*pi\s*(?:/\s*(\d+(?:\.\d*)?))?\s*$')
 _NAME_RE = re.compile(r'^[a-z][a-z0-9_]*$')
 MAX_CONFIG_BYTES = 1 << 20
@@ -51,11 +52,16 @@ def parse_number(value: Any, where: str) -> float:
         raise ConfigError(f'{where}: expected a number, got {value!r}')
     if isinstance(value, (int, float)):
         number = float(value)
+    elif isinstance(value, str) and _FLOAT_RE.match(value):
+        number = float(value)                      # YAML reads '1e-2' as a string
     elif isinstance(value, str):
         m = _PI_RE.match(value)
         if not m:
-            raise ConfigError(f'{where}: expected a number or a multiple of pi, got {value!r}')
+            raise ConfigError(f'{where}: expected a number or a multiple of pi, '
+                              f'got {value[:40]!r}')
         sign, coef, denom = m.groups()
+        if denom is not None and float(denom) == 0.0:
+            raise ConfigError(f'{where}: zero denominator in {value!r}')
         number = (float(coef) if coef else 1.0) * math.pi / (float(denom) if denom else 1.0)
         number = -number if sign == '-' else number
     else:
@@ -152,6 +158,25 @@ class Problem:
         return model_module(self.model).pack_params(self)
 
 
+def _integer(value: Any, where: str, minimum: int) -> int:
+    number = parse_number(value, where)
+    if number != int(number) or number < minimum:
+        raise ConfigError(f'{where}: expected an integer >= {minimum}, got {value!r}')
+    return int(number)
+
+
+def _mapping(doc: dict, key: str, where: str, optional: bool = False) -> dict:
+    """doc[key] as a mapping ({} if optional and absent)."""
+    if key not in doc and optional:
+        return {}
+    value = _require(doc, key, where)
+    if value is None and optional:
+        return {}
+    if not isinstance(value, dict):
+        raise ConfigError(f'{where}: {key}: expected a mapping')
+    return value
+
+
 def _require(doc: dict, key: str, where: str) -> Any:
     if key not in doc:
         raise ConfigError(f'{where}: missing field {key!r}')
@@ -190,9 +215,11 @@ def parse_problem(doc: Any, source: str) -> Problem:
         where = f'{source}: state[{i}]'
         if not isinstance(c, dict):
             raise ConfigError(f'{where}: expected a mapping')
+        angle = c.get('angle', False)
+        if not isinstance(angle, bool):
+            raise ConfigError(f'{where}.angle: expected true or false, got {angle!r}')
         coord = StateCoord(
-            name=str(_require(c, 'name', where)), unit=str(c.get('unit', '')),
-            angle=bool(c.get('angle', False)),
+            name=str(_require(c, 'name', where)), unit=str(c.get('unit', '')), angle=angle,
             range=parse_number(_require(c, 'range', where), f'{where}.range'),
             low=parse_number(_require(c, 'low', where), f'{where}.low'),
             high=parse_number(_require(c, 'high', where), f'{where}.high'),
@@ -206,29 +233,35 @@ def parse_problem(doc: Any, source: str) -> Problem:
     actions = _numbers(_require(doc, 'actions', source), f'{source}: actions')
     if not actions or len(set(actions)) != len(actions):
         raise ConfigError(f'{source}: actions: expected distinct numbers')
-    physics_doc = _require(doc, 'physics', source)
-    if not isinstance(physics_doc, dict):
-        raise ConfigError(f'{source}: physics: expected a mapping')
+    physics_doc = _mapping(doc, 'physics', source)
     physics = {str(k): parse_number(v, f'{source}: physics.{k}') for k, v in physics_doc.items()}
-    episode = _require(doc, 'episode', source)
-    goal = _require(doc, 'goal', source)
-    ql = doc.get('q_learning') or {}
-    ros = doc.get('ros') or {}
-    actuator = doc.get('actuator') or {}
+    episode = _mapping(doc, 'episode', source)
+    goal = _mapping(doc, 'goal', source)
+    ql = _mapping(doc, 'q_learning', source, optional=True)
+    ros = _mapping(doc, 'ros', source, optional=True)
+    actuator = _mapping(doc, 'actuator', source, optional=True)
+    model = _require(doc, 'model', source)
+    from sim_nodes.models import MODELS
+    if model not in MODELS:
+        raise ConfigError(f'{source}: model: unknown model {str(model)[:40]!r} '
+                          f'(known: {", ".join(MODELS)})')
     goal_scale = _optional_numbers(goal.get('scale'), f'{source}: goal.scale', dim, math.nan)
     goal_fixed = _optional_numbers(goal.get('fixed'), f'{source}: goal.fixed', dim, math.inf)
     for i, (s, f) in enumerate(zip(goal_scale, goal_fixed)):
         if math.isnan(s) == math.isinf(f):
             raise ConfigError(f'{source}: goal: coordinate {i} needs exactly one of scale, fixed')
-    substeps = int(parse_number(_require(episode, 'substeps', f'{source}: episode'),
-                                f'{source}: episode.substeps'))
-    n_step = int(parse_number(_require(episode, 'n_step', f'{source}: episode'),
-                              f'{source}: episode.n_step'))
-    indices = tuple(int(i) for i in ql.get('state_indices', range(dim)))
-    if any(i < 0 or i >= dim for i in indices):
+    substeps = _integer(_require(episode, 'substeps', f'{source}: episode'),
+                        f'{source}: episode.substeps', 1)
+    n_step = _integer(_require(episode, 'n_step', f'{source}: episode'),
+                      f'{source}: episode.n_step', 1)
+    raw_indices = ql.get('state_indices', list(range(dim)))
+    if not isinstance(raw_indices, list) or not raw_indices:
+        raise ConfigError(f'{source}: q_learning.state_indices: expected a list of indices')
+    indices = tuple(_integer(i, f'{source}: q_learning.state_indices', 0) for i in raw_indices)
+    if any(i >= dim for i in indices):
         raise ConfigError(f'{source}: q_learning.state_indices: out of range 0..{dim - 1}')
     problem = Problem(
-        name=name, model=str(_require(doc, 'model', source)),
+        name=name, model=model,
         description=str(doc.get('description', '')), state=tuple(coords),
         initial=_numbers(_require(doc, 'initial', source), f'{source}: initial', dim),
         best=_numbers(_require(doc, 'best', source), f'{source}: best', dim),
@@ -237,12 +270,13 @@ def parse_problem(doc: Any, source: str) -> Problem:
         substeps=substeps, n_step=n_step,
         default_delta=parse_number(episode.get('delta', 0.05), f'{source}: episode.delta'),
         goal_scale=goal_scale, goal_fixed=goal_fixed, ql_state_indices=indices,
-        ql_tiles_per_dim=int(ql.get('tiles_per_dim', 20)),
+        ql_tiles_per_dim=_integer(ql.get('tiles_per_dim', 20),
+                                  f'{source}: q_learning.tiles_per_dim', 1),
         ql_epsilon=parse_number(ql.get('epsilon', 0.02), f'{source}: q_learning.epsilon'),
         ql_eta=parse_number(ql.get('eta', 0.02), f'{source}: q_learning.eta'),
         ros=ros, source=source)
-    if problem.dt <= 0 or substeps < 1 or n_step < 1:
-        raise ConfigError(f'{source}: episode: needs dt > 0, substeps >= 1, n_step >= 1')
+    if problem.dt <= 0 or problem.default_delta < 0:
+        raise ConfigError(f'{source}: episode: needs dt > 0 and delta >= 0')
     problem.params()  # the model checks its own physics parameters
     return problem
 
@@ -276,7 +310,7 @@ def load_problem(name: str) -> Problem:
     """The configured problem called ``name``; UnknownProblemError lists the known ones."""
     if not isinstance(name, str) or not _NAME_RE.match(name) or name not in problem_names():
         known = ', '.join(problem_names())
-        raise UnknownProblemError(f'unknown problem {name!r} (known: {known})')
+        raise UnknownProblemError(f'unknown problem {str(name)[:40]!r} (known: {known})')
     problem = load_problem_file(config_dir() / f'{name}.yaml')
     if problem.name != name:
         raise ConfigError(f'{problem.source}: name {problem.name!r} does not match the file name')

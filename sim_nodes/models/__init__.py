@@ -8,7 +8,8 @@ A model module provides, all compiled with numba and free of Python objects:
   (``substeps`` integration substeps holding ``action``) and return that step's reward.
 
 Goal area and ``delta(s)`` are data (``goal`` in the YAML), shared by every model
-(``sim_nodes.goal``).  A new problem is one YAML file plus one module here.
+(``sim_nodes.goal``).  A new problem is one YAML file plus one module here (named in
+MODELS and given its branch in ``dispatch.step_lanes``).
 """
 from __future__ import annotations
 
@@ -18,6 +19,13 @@ from types import ModuleType
 from sapga_ros.errors import ConfigError
 
 MODELS = ('acrobot', 'pdip', 'mountain_car')
+
+
+def model_id(name: str) -> int:
+    """The number the compiled kernels know model ``name`` by."""
+    if name not in MODELS:
+        raise ConfigError(f'unknown model {name!r} (known: {", ".join(MODELS)})')
+    return MODELS.index(name)
 
 
 def model_module(name: str) -> ModuleType:

@@ -11,7 +11,7 @@ TWO_PI = 2.0 * math.pi
 def wrap_angle(theta: float) -> float:
     """theta wrapped to [0, 2pi)."""
     w = theta - TWO_PI * np.floor(theta / TWO_PI)  # np.floor: a float, vectorisable
-    if w >= TWO_PI:  # rounding of a tiny negative theta
+    if (w >= TWO_PI) | (w < 0.0):  # rounding of a tiny negative theta
         w = 0.0
     return w
 

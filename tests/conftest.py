@@ -1,0 +1,49 @@
+"""Fixtures shared by the test modules: the configured problems and seeded generators.
+
+Keep this file generic.  A module that needs something of its own defines it there (a
+fixture of the same name in a module overrides the one here).
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sim_nodes.problem import Problem, load_problem
+
+SEED = 20240521  # every random draw of the suite starts here: a failure reproduces
+
+
+@pytest.fixture(scope='session')
+def acrobot_problem() -> Problem:
+    """The acrobot of msg_configs/acrobot.yaml (SPEC 2.1)."""
+    return load_problem('acrobot')
+
+
+@pytest.fixture(scope='session')
+def pdip_problem() -> Problem:
+    """The PDIP of msg_configs/pdip.yaml (SPEC 2.2), l2 = 0.5."""
+    return load_problem('pdip')
+
+
+@pytest.fixture(scope='session')
+def pdip_single_problem() -> Problem:
+    """The PDIP with l2 = l1 (msg_configs/pdip_single.yaml): the single pendulum."""
+    return load_problem('pdip_single')
+
+
+@pytest.fixture(scope='session', params=['acrobot', 'pdip'])
+def problem(request) -> Problem:
+    """Each of the paper's two problems in turn."""
+    return load_problem(request.param)
+
+
+@pytest.fixture(scope='session')
+def seed() -> int:
+    """The suite's seed, for fixtures wider than a test that make their own generator."""
+    return SEED
+
+
+@pytest.fixture
+def rng(seed: int) -> np.random.Generator:
+    """A generator seeded with the suite's seed, fresh for each test."""
+    return np.random.default_rng(seed)
