@@ -231,6 +231,10 @@ def run_node(make_node: Callable[[], Node], args: list[str] | None = None,
     except (SapgaError, ParameterException) as exc:
         print(f'error: {exc}', file=sys.stderr)
         code = 1
+    except Exception:  # noqa: BLE001
+        if rclpy.ok():
+            raise
+        # Ctrl-C while starting up: the context was shut down under the constructor
     finally:
         if node is not None:
             node.destroy_node()

@@ -263,6 +263,10 @@ def main(args: list[str] | None = None) -> int:
     except SapgaError as exc:
         print(f'recorder_node: error: {exc}', file=sys.stderr, flush=True)
         return 1
+    except Exception:  # noqa: BLE001
+        if rclpy.ok():
+            raise
+        # Ctrl-C while starting up: the context was shut down under the constructor
     finally:
         signal.signal(signal.SIGTERM, signal.SIG_IGN)   # a second SIGTERM: let the file finish
         if node is not None:
