@@ -33,6 +33,7 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	$(VENV)/bin/sapga bench
+	$(VENV)/bin/sapga bench --ros
 
 clean:
 	rm -rf $(VENV) .cache build install log *.egg-info $(OUT)

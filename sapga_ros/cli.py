@@ -4,7 +4,7 @@
                 [--jobs J] [--out FILE] [--checkpoint DIR] [--resume] [--init FILE ...]
     sapga eval POLICY [--delta D] [--max-steps N] [--json]
     sapga exemplars POLICY [--json] [--plot OUT.png] [--prune-unused OUT.json]
-    sapga bench [--json]
+    sapga bench [--json] [--ros [--problem P]]
     sapga inspect FILE.mcap [--json] [--plot OUT.png]
     sapga experiment [table2] --out DIR [--only 2,4] [--seeds N] [--scale F]
     sapga launch NAME ...
@@ -99,6 +99,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     b = sub.add_parser('bench', help='batch evaluation speed vs a plain NumPy loop')
     b.add_argument('--json', action='store_true', help='print one JSON object')
+    b.add_argument('--ros', action='store_true',
+                   help='instead: the lockstep loop through DDS and the policy node\'s '
+                        'selection time (sapga_ros.bench_ros)')
+    b.add_argument('--problem', default='acrobot', help='with --ros: the problem')
 
     i = sub.add_parser('inspect', help='summarise (and plot) an MCAP recording')
     i.add_argument('file')
@@ -290,6 +294,9 @@ def cmd_exemplars(args) -> int:
 
 
 def cmd_bench(args) -> int:
+    if args.ros:
+        from sapga_ros.bench_ros import main as bench_ros
+        return bench_ros(['--problem', args.problem, '--processes'])
     from sapga_ros.bench import run_bench
     result = run_bench()
     if args.json:
