@@ -122,7 +122,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     la = sub.add_parser('launch', help='start a group of nodes (swingup, train_deploy)',
                         add_help=False)
-    la.add_argument('name')
+    la.add_argument('name', nargs='?', help='swingup or train_deploy')
     la.add_argument('args', nargs=argparse.REMAINDER)
     return parser
 
@@ -329,7 +329,7 @@ def cmd_experiment(args) -> int:
 
 def cmd_launch(args) -> int:
     from sapga_ros.launch import run_launch
-    return run_launch(args.name, args.args)
+    return run_launch(args.name or '--help', args.args)
 
 
 COMMANDS = {'train': cmd_train, 'eval': cmd_eval, 'exemplars': cmd_exemplars,

@@ -15,6 +15,9 @@ def write_atomic(path: str | os.PathLike, content: str | bytes | Callable[[Binar
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f'.{path.name}.', dir=path.parent)
     try:
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)  # as open() would create it, not mkstemp's 0600
         with os.fdopen(fd, 'wb') as f:
             if callable(content):
                 content(f)

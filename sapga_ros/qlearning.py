@@ -258,8 +258,9 @@ def parse_json(data: bytes, source: str):
         raise PolicyFileError(f'{source}: {exc}') from exc
 
 
-def train_ql(config, progress=None) -> 'object':
-    """Run the Q-learning baseline as configured (a ``TrainConfig``)."""
+def train_ql(config, progress=None, should_stop=None) -> 'object':
+    """Run the Q-learning baseline as configured (a ``TrainConfig``); it ends early, keeping
+    what it learnt, once ``should_stop()`` is true (checked every chunk of steps)."""
     from sapga_ros.train import TrainResult
     pr = load_problem(config.problem)
     delta = float(pr.default_delta if config.delta is None else config.delta)
@@ -304,7 +305,7 @@ def train_ql(config, progress=None) -> 'object':
     start = time.perf_counter()
     steps_at_start = steps
     chunks = 0
-    while steps < config.steps:
+    while steps < config.steps and not (should_stop and should_stop()):
         budget = min(CHUNK_STEPS, config.steps - steps)
         done, n_ep = learn(consts[0], q, visited, rng, *consts[1:], budget, ep_r, ep_s, ep_d)
         steps += int(done)
@@ -320,7 +321,8 @@ def train_ql(config, progress=None) -> 'object':
         if progress:
             progress(row)
         chunks += 1
-        if config.checkpoint and (chunks % 10 == 0 or steps >= config.steps):
+        stopping = steps >= config.steps or bool(should_stop and should_stop())
+        if config.checkpoint and (chunks % 10 == 0 or stopping):
             save_checkpoint(config.checkpoint,
                             {'run': settings, 'steps': steps, 'episodes': episodes,
                              'best_value': best_value, 'delta_star': dstar,

@@ -1,0 +1,154 @@
+"""``sapga launch train_deploy``: evolve a policy in the trainer node, deploy it over the
+service, run the episode in lockstep, record it, and compare with the offline evaluation.
+
+    sapga launch train_deploy --out DIR [--problem acrobot] [--steps N] [--seed S]
+                              [--delta D] [--jobs J]
+
+1. The trainer node (``train_on_start``; policy ``DIR/policy.json``, checkpoints in
+   ``DIR/checkpoint``), the recorder, the simulator (lockstep, one episode, waiting silently
+   at its first state) and the policy node (no policy) start; the trainer reports on
+   ``/diagnostics`` and logs its progress.
+2. When the trainer's state is ``done`` and the graph joins every node, the launcher calls
+   the policy node's ``load_policy``, which fetches the best policy from the trainer's
+   ``get_policy``; then the simulator re-publishes its waiting state, the policy answers it
+   and the episode runs in lockstep.
+3. After the episode's end event every node is stopped, the recorder finishes its MCAP file,
+   and the summary compares the ROS episode (return, delta*, steps) with the offline
+   evaluation of the policy the trainer served: in lockstep they are equal, exactly.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
+
+from sapga_ros.errors import SapgaError
+from sapga_ros.launch import LaunchError, Supervisor, exit_code
+from sapga_ros.launch.swingup import (DeployStack, LaunchRos, StackOptions, episode_lines,
+                                      event_summary, finite_number, offline_episode,
+                                      positive_int, same_episode)
+from sim_nodes.problem import load_problem
+
+TRAIN_TIMEOUT_S = None   # training takes as long as its budget: no limit (Ctrl-C stops it)
+
+
+@dataclass
+class TrainDeployResult:
+    """What a train_deploy launch produced."""
+
+    policy_file: Path               # the trainer's best policy file
+    trainer: dict[str, str]         # the trainer's last diagnostics key values
+    episode: dict                   # the ROS episode: return, delta_star, steps, reached
+    offline: dict                   # the served policy's offline evaluation
+    equal: bool
+    recordings: list[Path]
+    end_event: dict
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog='sapga launch train_deploy',
+                                description='Evolve a policy in the trainer node, deploy it to '
+                                            'the policy node over the service, run and record '
+                                            'one lockstep episode.')
+    p.add_argument('--out', required=True, metavar='DIR',
+                   help='directory of the policy, checkpoint and recording')
+    p.add_argument('--problem', default='acrobot', help='problem (default acrobot)')
+    p.add_argument('--steps', type=positive_int, default=30_000_000, metavar='N',
+                   help='training budget in MDP steps (default 30000000)')
+    p.add_argument('--seed', type=int, default=0, metavar='S', help='random seed (default 0)')
+    p.add_argument('--delta', type=finite_number(0.0),
+                   help="goal difficulty (default: the problem's)")
+    p.add_argument('--jobs', type=int, default=0, metavar='J',
+                   help='evaluation threads of the trainer (default 0: every core)')
+    return p
+
+
+def run_train_deploy(args: argparse.Namespace, sup: Supervisor) -> TrainDeployResult:
+    """The launch itself, under ``sup`` (which stops the nodes whatever happens)."""
+    from sapga_ros.policy import policy_from_json
+    if args.seed < 0 or args.jobs < 0:
+        raise LaunchError('--seed and --jobs: expected integers >= 0')
+    problem = load_problem(args.problem)
+    out = Path(args.out).resolve()
+    delta = float(problem.default_delta if args.delta is None else args.delta)
+    policy_file = out / 'policy.json'
+    opts = StackOptions(problem, out, delta, episodes=1, mode='lockstep')
+    sup.say(f'{problem.name}: training {args.steps:,d} steps (seed {args.seed}, delta '
+            f'{delta}) in the trainer node, then one lockstep episode recorded to {out}')
+    ros = LaunchRos(problem)
+    try:
+        with tempfile.TemporaryDirectory(prefix='sapga-launch-') as tmp:
+            stack = DeployStack(sup, ros, opts, Path(tmp))
+            stack.start()
+            stack.spawn('trainer', 'trainer_node', {
+                'problem': problem.name, 'method': 'sapga', 'delta': delta,
+                'steps': args.steps, 'seed': args.seed, 'jobs': args.jobs,
+                'out': str(policy_file), 'checkpoint': str(out / 'checkpoint'),
+                'train_on_start': True})
+            stack.wait_connected()
+            node = ros.node
+
+            def trained() -> dict[str, str] | None:
+                status = node.trainer
+                if status and status.get('state') == 'failed':
+                    raise LaunchError(f'trainer: {status.get("message")}')
+                return status if status and status.get('state') == 'done' else None
+
+            trainer = sup.wait(trained, timeout=TRAIN_TIMEOUT_S, what='the training run')
+            sup.say(f'trainer: {trainer["message"]}')
+            served = ros.trigger(sup, 'get_policy')
+            if not served.success:
+                raise LaunchError(f'trainer serves no policy: {served.message}')
+            policy = policy_from_json(served.message, problem, 'get_policy')
+            loaded = ros.trigger(sup, 'load_policy')
+            if not loaded.success:
+                raise LaunchError(f'policy node did not load the policy: {loaded.message}')
+            sup.say(f'policy node: {loaded.message}')
+            stack.go()
+            end = stack.run_episodes()[0]
+            stack.wait_recorded([end])
+    finally:
+        sup.stop()
+        ros.close()
+    offline = offline_episode(policy, delta)
+    episode = event_summary(end)
+    return TrainDeployResult(policy_file, trainer, episode, offline,
+                             same_episode(episode, offline), stack.recordings(), end)
+
+
+def summary_lines(result: TrainDeployResult) -> list[str]:
+    """The summary of a train_deploy run as text lines."""
+    t, e, o = result.trainer, result.episode, result.offline
+    lines = [f'trained: {t.get("steps")} steps, best value {t.get("best_value")}, run delta* '
+             f'{t.get("delta_star")} (delta {t.get("delta")}, achieved {t.get("achieved")})',
+             f'policy:  {result.policy_file}']
+    lines += episode_lines([result.end_event])
+    lines.append(f'{"":>7} {"offline":<10} {o["steps"]:>5} {o["return"]:>12.4f} '
+                 f'{o["delta_star"]:>9.5f}   (served policy, batch evaluator)')
+    lines.append('ROS episode == offline evaluation: '
+                 + ('yes, exactly (return, delta*, steps)' if result.equal else
+                    f'NO: ROS {e} vs offline {o}'))
+    lines += [f'recording: {p}' for p in result.recordings] or [
+        "recording: none written (see the recorder's output)"]
+    return lines
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``sapga launch train_deploy ...``; the exit code (see ``run_launch``)."""
+    args = build_parser().parse_args(argv)
+    sup = Supervisor()
+    try:
+        with sup, sup.handle_signals():
+            result = run_train_deploy(args, sup)
+    except SapgaError as exc:
+        sup.say(f'error: {exc}')
+        return exit_code(exc) if isinstance(exc, LaunchError) else 2
+    sup.say('\n'.join(summary_lines(result)))
+    return 0 if result.equal else 1
+
+
+if __name__ == '__main__':
+    sys.exit(main())

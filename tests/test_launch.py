@@ -1,0 +1,187 @@
+"""Launch (sapga_ros/launch): the process supervisor (prefixed output, a crashed child ends
+the launch, Ctrl-C stops every child) and the swingup / train_deploy launches end to end over
+real nodes, whose lockstep episodes equal the offline evaluation."""
+from __future__ import annotations
+
+import io
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+
+from ros_helpers import executable, free_domain_id
+from sapga_ros import cli
+from sapga_ros.launch import ChildExited, Supervisor, exit_code, run_launch
+from sapga_ros.policy import ExemplarPolicy
+from sim_nodes.problem import load_problem
+
+LAUNCH_TIMEOUT_S = 150  # [s] bound on a whole launch: a failing test, not a timing check
+
+
+def python_child(code: str) -> list[str]:
+    return [sys.executable, '-c', textwrap.dedent(code)]
+
+
+def test_output_lines_carry_the_child_name():
+    """Every line a child writes, stdout or stderr, reaches the launch prefixed with its name."""
+    stream = io.StringIO()
+    with Supervisor(stream=stream) as sup:
+        sup.start('alpha', python_child('print("hello"); print("second line")'))
+        sup.start('beta', python_child('import sys; sys.stderr.write("oops\\n")'))
+        sup.wait()
+    lines = stream.getvalue().splitlines()
+    assert '[alpha] hello' in lines and '[alpha] second line' in lines
+    assert '[beta] oops' in lines
+
+
+def test_a_crashed_child_ends_the_launch_with_its_name_and_exit_code():
+    """A child that exits with an error stops the launch, naming it and its code; the rest stop."""
+    stream = io.StringIO()
+    sup = Supervisor(stream=stream, stop_timeout=5.0)
+    with sup:
+        sleeper = sup.start('sleeper', python_child('import time; time.sleep(120)'))
+        sup.start('crasher', python_child('import time, sys; time.sleep(0.2); sys.exit(3)'))
+        with pytest.raises(ChildExited) as info:
+            sup.wait(lambda: False, what='forever')
+    assert info.value.name == 'crasher' and info.value.returncode == 3
+    assert 'crasher exited with code 3' in str(info.value)
+    assert exit_code(info.value) == 1
+    assert sleeper.returncode is not None        # stopped with the launch
+
+
+SUPERVISED = '''
+import sys
+from sapga_ros.launch import Interrupted, Supervisor, exit_code
+polite = """
+import signal, sys, time
+def on_int(*a):
+    open(sys.argv[1], 'w').write('SIGINT'); sys.exit(0)
+signal.signal(signal.SIGINT, on_int)
+print('ready', flush=True)
+time.sleep(120)
+"""
+stubborn = """
+import signal, sys, time
+signal.signal(signal.SIGINT, signal.SIG_IGN)
+def on_term(*a):
+    open(sys.argv[1], 'w').write('SIGTERM'); sys.exit(0)
+signal.signal(signal.SIGTERM, on_term)
+print('ready', flush=True)
+time.sleep(120)
+"""
+sup = Supervisor(stop_timeout=1.0)
+try:
+    with sup, sup.handle_signals():
+        sup.start('polite', [sys.executable, '-c', polite, sys.argv[1]])
+        sup.start('stubborn', [sys.executable, '-c', stubborn, sys.argv[2]])
+        sup.wait(lambda: False, what='Ctrl-C')
+except Interrupted as exc:
+    print('interrupted', flush=True)
+    sys.exit(exit_code(exc))
+'''
+
+
+def test_ctrl_c_stops_every_child_with_sigint_then_sigterm(tmp_path):
+    """Ctrl-C to the launcher sends SIGINT to every child, SIGTERM to one that ignores it."""
+    polite, stubborn = tmp_path / 'polite', tmp_path / 'stubborn'
+    proc = subprocess.Popen([sys.executable, '-c', SUPERVISED, str(polite), str(stubborn)],
+                            stdout=subprocess.PIPE, text=True)
+    ready = 0
+    for line in proc.stdout:
+        ready += line.endswith('ready\n')
+        if ready == 2:
+            break
+    proc.send_signal(signal.SIGINT)
+    out, _ = proc.communicate(timeout=60)
+    assert proc.returncode == 128 + signal.SIGINT
+    assert 'interrupted' in out and '[launch] stubborn still running: SIGTERM' in out
+    assert polite.read_text() == 'SIGINT' and stubborn.read_text() == 'SIGTERM'
+
+
+def test_unknown_launches_and_bad_policy_files_are_refused_before_any_node_starts(
+        tmp_path, capsys):
+    """An unknown launch name or a bad policy file gives exit code 2 and says what is wrong."""
+    assert run_launch('nope', []) == 2
+    assert "unknown launch 'nope'" in capsys.readouterr().err
+    (tmp_path / 'bad.json').write_text('{"format": "sapga-policy/1"')
+    assert run_launch('swingup', ['--policy', str(tmp_path / 'bad.json'),
+                                  '--out', str(tmp_path / 'rec')]) == 2
+    assert 'bad.json: malformed JSON' in capsys.readouterr().out
+    assert not (tmp_path / 'rec').exists()
+
+
+# end to end over real nodes -------------------------------------------------------------
+
+def launch(args: list[str], tmp_path: Path) -> subprocess.CompletedProcess:
+    """Run ``sapga launch ...`` in a ROS domain of its own; fail with its output on error."""
+    env = dict(os.environ, ROS_DOMAIN_ID=str(free_domain_id()),
+               ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', PYTHONUNBUFFERED='1')
+    done = subprocess.run([str(executable('sapga')), 'launch', *args], env=env, cwd=tmp_path,
+                          stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                          timeout=LAUNCH_TIMEOUT_S)
+    assert done.returncode == 0, done.stdout[-4000:]
+    return done
+
+
+def recorded_episodes(path: Path) -> tuple[list[dict], list[float]]:
+    """The episode end events and the rewards of an MCAP file, read with the mcap library."""
+    ends, rewards = [], []
+    with open(path, 'rb') as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        assert reader.get_header().profile == 'ros2'
+        for _, channel, _, msg in reader.iter_decoded_messages(log_time_order=True):
+            if channel.topic == '/episode_event':
+                event = json.loads(msg.data)
+                if event['event'] in ('goal', 'step_limit'):
+                    ends.append(event)
+            elif channel.topic == '/reward':
+                rewards.append(msg.data)
+    return ends, rewards
+
+
+def sapga_eval_json(path: Path, capsys) -> dict:
+    assert cli.main(['eval', str(path), '--json']) == 0
+    return json.loads(capsys.readouterr().out)
+
+
+def test_swingup_lockstep_recording_equals_sapga_eval(tmp_path, capsys):
+    """Each lockstep episode of the swingup launch, as recorded in MCAP, equals sapga eval."""
+    problem = load_problem('acrobot')
+    rng = np.random.default_rng(11)
+    policy = ExemplarPolicy(problem, rng.uniform(problem.low, problem.high, (60, 4)),
+                            rng.integers(0, 3, 60), meta={'delta': 0.3})
+    policy.save(tmp_path / 'small.json')
+    done = launch(['swingup', '--policy', 'small.json', '--out', 'rec', '--episodes', '2'],
+                  tmp_path)
+    assert '[sim] ' in done.stdout and '[recorder] ' in done.stdout
+    assert 'every lockstep episode is equal' in done.stdout
+    (recording,) = (tmp_path / 'rec').glob('*.mcap')
+    ends, rewards = recorded_episodes(recording)
+    expected = sapga_eval_json(tmp_path / 'small.json', capsys)   # delta from meta: 0.3
+    assert len(ends) == 2
+    for event in ends:
+        assert event['return'] == expected['return'] and event['step'] == expected['steps']
+        assert event['delta_star'] == expected['delta_star']
+        assert event['goal_delta'] == 0.3
+    assert rewards and all(-5.0 <= r <= -1.0 for r in rewards)   # the acrobot's reward range
+
+
+def test_train_deploy_serves_records_and_equals_the_offline_evaluation(tmp_path, capsys):
+    """train_deploy's trained, served, recorded episode equals sapga eval of the policy file."""
+    done = launch(['train_deploy', '--steps', '100000', '--delta', '0.3', '--out', 'td',
+                   '--jobs', '1'], tmp_path)
+    assert '[trainer] ' in done.stdout and '[policy] ' in done.stdout
+    assert 'ROS episode == offline evaluation: yes' in done.stdout
+    (recording,) = (tmp_path / 'td').glob('*.mcap')
+    (end,), _ = recorded_episodes(recording)
+    expected = sapga_eval_json(tmp_path / 'td' / 'policy.json', capsys)
+    assert (end['return'], end['step']) == (expected['return'], expected['steps'])
+    assert (tmp_path / 'td' / 'checkpoint').is_dir()

@@ -1,0 +1,233 @@
+"""Trainer node (sapga_ros/nodes/trainer_node.py) over real Fast DDS: the best policy served on
+get_policy during and after training, the hand-off to the policy node, the train service,
+/diagnostics, Q-learning runs, parameters and a clean stop."""
+from __future__ import annotations
+
+import json
+import math
+import threading
+
+import numpy as np
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from std_srvs.srv import Trigger
+
+from ros_helpers import Probe, isolated_ros
+from sapga_ros.errors import ConfigError
+from sapga_ros.evaluation import Evaluator
+from sapga_ros.nodes.policy_node import PolicyNode
+from sapga_ros.nodes.trainer_node import TrainerNode
+from sapga_ros.policy import ExemplarPolicy, load_policy, policy_from_json
+from sapga_ros.sapga import SapgaParams
+from sapga_ros.train import TrainConfig, train_sapga
+from sim_nodes.problem import load_problem
+
+# A tiny run: a few generations of a small population, on one thread.
+SMALL = {'n_pop': 10, 'n_child': 4, 'l_min': 10, 'l_max': 20, 'jobs': 1, 'delta': 0.3,
+         'seed': 3}
+BUDGET = 200_000
+
+
+@pytest.fixture
+def ros(monkeypatch, tmp_path):
+    """An isolated ROS 2 domain with an executor thread (tests/ros_helpers.py)."""
+    yield from isolated_ros(monkeypatch, tmp_path)
+
+
+class Client(Node):
+    """The trainer's services and /diagnostics, as any other node sees them."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__('trainer_client', **kwargs)
+        self.get_policy = self.create_client(Trigger, 'get_policy')
+        self.train = self.create_client(Trigger, 'train')
+        self.lock = threading.Lock()
+        self.diagnostics: list[dict[str, str]] = []
+        self.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics, 100)
+
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            if status.name.endswith(': training'):
+                values = {kv.key: kv.value for kv in status.values}
+                values.update(message=status.message, level=int.from_bytes(status.level, 'big'))
+                with self.lock:
+                    self.diagnostics.append(values)
+
+    def last(self) -> dict[str, str] | None:
+        with self.lock:
+            return self.diagnostics[-1] if self.diagnostics else None
+
+    def states(self) -> list[str]:
+        with self.lock:
+            return [d['state'] for d in self.diagnostics]
+
+
+def state_is(client: Client, state: str):
+    return lambda: (client.last() or {}).get('state') == state
+
+
+def stop_node(ros, node: TrainerNode) -> None:
+    """Destroy ``node`` the way a Ctrl-C does (the harness must not destroy it again)."""
+    ros.executor.remove_node(node)
+    ros.nodes.remove(node)
+    node.destroy_node()
+
+
+def test_best_policy_is_served_during_training_and_a_second_train_is_refused(ros, tmp_path):
+    """While a run goes on, get_policy serves its best evaluated policy and train refuses."""
+    out = tmp_path / 'best.json'
+    client = ros.start(Client)
+    trainer = ros.start(TrainerNode, params={**SMALL, 'steps': 10**12, 'out': str(out),
+                                             'train_on_start': True})
+    response = ros.wait_for(lambda: (r := ros.call(client.get_policy, Trigger.Request()))
+                            .success and r, 'a best policy during training')
+    assert trainer.training
+    policy = policy_from_json(response.message, 'acrobot')
+    episode = Evaluator(policy.problem, SMALL['delta']).episode(policy)
+    assert episode.ret == policy.meta['value']              # served = evaluated, with meta
+    assert episode.delta_star == policy.meta['delta_star']
+
+    refused = ros.call(client.train, Trigger.Request())
+    assert not refused.success and 'already training' in refused.message
+    assert trainer.training
+
+    stop_node(ros, trainer)                                  # what Ctrl-C does
+    assert not trainer.training
+    saved = load_policy(out, 'acrobot')                      # the best so far is on disk
+    assert saved.meta['value'] >= policy.meta['value']
+    assert saved.meta['steps'] < 10**12
+
+
+def test_trained_policy_reaches_the_policy_node_over_load_policy(ros, tmp_path):
+    """The real trainer executable's best policy is what the policy node loads over the service."""
+    out = tmp_path / 'policy.json'
+    params = {**SMALL, 'steps': BUDGET, 'out': str(out), 'train_on_start': 'true'}
+    ros.spawn('trainer_node', '--ros-args',
+              *[a for k, v in params.items() for a in ('-p', f'{k}:={v}')])
+    client = ros.start(Client)
+    probe = ros.start(Probe, problem=load_problem('acrobot'))
+    policy_node = ros.start(PolicyNode)
+    ros.wait_for(state_is(client, 'done'), 'the trainer to finish', timeout=90)
+
+    served = ros.call(client.get_policy, Trigger.Request())
+    assert served.success and served.message == out.read_text(encoding='utf-8')
+    response = ros.call(probe.load_policy, Trigger.Request())
+    assert response.success, response.message
+    loaded, written = policy_node.active.policy, load_policy(out, 'acrobot')
+    assert np.array_equal(loaded.states, written.states)
+    assert np.array_equal(loaded.actions, written.actions)
+    assert loaded.meta == written.meta and written.meta['steps'] >= BUDGET
+
+
+def test_diagnostics_report_the_state_and_progress_of_a_run(ros, tmp_path):
+    """/diagnostics goes idle -> training -> done with steps, best value and delta* as logged."""
+    client = ros.start(Client)
+    trainer = ros.start(TrainerNode, params={**SMALL, 'steps': BUDGET,
+                                             'diagnostics_period': 0.2})
+    ros.wait_for(state_is(client, 'idle'), 'idle diagnostics')
+    assert not ros.call(client.get_policy, Trigger.Request()).success
+    started = ros.call(client.train, Trigger.Request())
+    assert started.success and f'{BUDGET} steps' in started.message
+    ros.wait_for(state_is(client, 'done'), 'the run to finish', timeout=60)
+    states = client.states()
+    assert states.index('idle') < states.index('training') < states.index('done')
+    done = client.last()
+    assert {'steps', 'best_value', 'delta_star', 'steps_per_s', 'generation', 'budget',
+            'delta', 'achieved', 'method', 'seed'} <= set(done)
+    row = trainer._history[-1]
+    assert int(done['steps']) == row['steps'] >= BUDGET == int(done['budget'])
+    assert float(done['best_value']) == row['best_value']
+    assert float(done['delta_star']) == row['delta_star']
+    assert int(done['generation']) == row['generation'] and done['level'] == 0
+    assert float(done['delta']) == SMALL['delta'] and done['method'] == 'sapga'
+    assert done['achieved'] == str(row['delta_star'] <= SMALL['delta']).lower()
+    steps = [int(d['steps']) for d in client.diagnostics if d['state'] != 'idle']
+    assert steps == sorted(steps)
+
+
+def test_node_run_equals_the_offline_run_with_the_same_settings(ros, tmp_path):
+    """The node trains exactly what train_sapga does with the same seed and parameters."""
+    out = tmp_path / 'node.json'
+    client = ros.start(Client)
+    ros.start(TrainerNode, params={**SMALL, 'steps': BUDGET, 'out': str(out),
+                                   'train_on_start': True})
+    ros.wait_for(state_is(client, 'done'), 'the run to finish', timeout=60)
+    config = TrainConfig(problem='acrobot', delta=SMALL['delta'], steps=BUDGET,
+                         seed=SMALL['seed'], jobs=1,
+                         params=SapgaParams(n_pop=10, n_child=4, l_min=10, l_max=20))
+    offline = train_sapga(config).policy
+    node = load_policy(out, 'acrobot')
+    assert np.array_equal(node.states, offline.states)
+    assert np.array_equal(node.actions, offline.actions)
+    assert node.meta['value'] == offline.meta['value']
+    assert (tmp_path / 'node.log.csv').read_text().count('\n') == node.meta['generations'] + 1
+
+
+def test_policy_file_is_served_until_training_finds_a_best(ros, tmp_path):
+    """get_policy serves policy_file until a run's first best policy replaces it."""
+    problem = load_problem('acrobot')
+    rng = np.random.default_rng(0)
+    given = ExemplarPolicy(problem, rng.uniform(problem.low, problem.high, (30, 4)),
+                           rng.integers(0, 3, 30), meta={'note': 'hand-written'})
+    given.save(tmp_path / 'given.json')
+    client = ros.start(Client)
+    ros.start(TrainerNode, params={**SMALL, 'steps': BUDGET,
+                                   'policy_file': str(tmp_path / 'given.json')})
+    first = ros.call(client.get_policy, Trigger.Request())
+    assert first.success and json.loads(first.message)['meta'] == {'note': 'hand-written'}
+    assert ros.call(client.train, Trigger.Request()).success
+    ros.wait_for(state_is(client, 'done'), 'the run to finish', timeout=60)
+    trained = json.loads(ros.call(client.get_policy, Trigger.Request()).message)
+    assert trained['meta']['method'] == 'sapga' and trained['meta']['steps'] >= BUDGET
+
+
+def test_q_learning_runs_but_get_policy_says_a_q_table_is_not_served(ros, tmp_path):
+    """A QL run writes its Q-table file; get_policy refuses, saying why, instead of serving."""
+    out = tmp_path / 'q.json'
+    client = ros.start(Client)
+    ros.start(TrainerNode, params={'method': 'ql', 'steps': 20_000, 'out': str(out),
+                                   'delta': 0.3, 'train_on_start': True})
+    response = ros.call(client.get_policy, Trigger.Request())
+    assert not response.success and 'Q-table' in response.message
+    ros.wait_for(state_is(client, 'done'), 'the QL run to finish', timeout=60)
+    response = ros.call(client.get_policy, Trigger.Request())
+    assert not response.success and 'method ql' in response.message
+    assert json.loads(out.read_text())['format'] == 'sapga-qtable/1'
+    assert client.last()['method'] == 'ql' and int(client.last()['episodes']) > 0
+
+
+def test_invalid_parameters_are_refused_with_the_reason(ros, tmp_path):
+    """Bad settings fail at start or are refused with the reason; the node keeps serving."""
+    with pytest.raises(ConfigError, match='method'):
+        ros.start(TrainerNode, params={'method': 'cmaes'})
+    trainer = ros.start(TrainerNode, params={'delta': math.nan,
+                                             'policy_file': str(tmp_path / 'missing.json')})
+    client = ros.start(Client)
+    response = ros.call(client.get_policy, Trigger.Request())
+    assert not response.success and 'missing.json: cannot read' in response.message
+    assert trainer.train_config().delta == load_problem('acrobot').default_delta
+    for name, value in [('steps', 0), ('n_pop', 1), ('delta', math.inf), ('jobs', -1),
+                        ('method', 'x'), ('policy_file', str(tmp_path / 'missing.json'))]:
+        result = trainer.set_parameters([Parameter(name, value=value)])[0]
+        assert not result.successful and name in result.reason, (name, result.reason)
+    assert trainer.set_parameters([Parameter('delta', value=0)])[0].successful  # int is fine
+    assert trainer.set_parameters([Parameter('l_min', value=120)])[0].successful
+    refused = ros.call(client.train, Trigger.Request())
+    assert not refused.success and 'l_min 120 is larger than l_max 100' in refused.message
+    assert trainer.status()['state'] == 'idle'
+
+
+def test_an_unwritable_policy_file_fails_the_run_but_the_policy_is_still_served(ros, tmp_path):
+    """When out cannot be written the run reports failed, naming it, and get_policy serves."""
+    (tmp_path / 'file').write_text('not a directory')
+    out = tmp_path / 'file' / 'policy.json'
+    client = ros.start(Client)
+    ros.start(TrainerNode, params={**SMALL, 'steps': BUDGET, 'out': str(out),
+                                   'train_on_start': True})
+    ros.wait_for(state_is(client, 'failed'), 'the run to fail', timeout=60)
+    last = client.last()
+    assert str(tmp_path / 'file') in last['message'] and last['level'] == 2
+    served = ros.call(client.get_policy, Trigger.Request())
+    assert served.success and json.loads(served.message)['meta']['steps'] >= BUDGET
