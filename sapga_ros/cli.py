@@ -254,9 +254,9 @@ def cmd_eval(args) -> int:
     if args.json:
         print(json.dumps(ep.summary()))
     else:
-        print(f"{policy.problem.name}: return {ep.ret:.6f}, delta* {ep.delta_star:.6f}, "
-              f"steps {ep.steps}, {'reached' if ep.reached else 'did not reach'} S_delta "
-              f'(delta {delta})')
+        reached = 'reached' if ep.reached else 'did not reach'
+        print(f'{policy.problem.name}: return {ep.ret:.6f}, delta* {ep.delta_star:.6f}, '
+              f'steps {ep.steps}, {reached} S_delta (delta {delta})')
     return 0
 
 

@@ -47,7 +47,8 @@ def xorshift_uniform(rng):
     x ^= x << np.uint64(25)
     x ^= x >> np.uint64(27)
     rng[0] = x
-    return float((x * np.uint64(2685821657736338717)) >> np.uint64(11)) * (1.0 / 9007199254740992.0)
+    mixed = (x * np.uint64(2685821657736338717)) >> np.uint64(11)  # top 53 bits
+    return float(mixed) * (1.0 / 9007199254740992.0)                  # / 2^53
 
 
 @kernel(inline='always')
@@ -77,9 +78,10 @@ def greedy(q, cell):
 def learn(model, q, visited, rng, s0, p, actions, idx, low, width, tiles, best, inv_scale,
           fixed, is_angle, delta, n_step, epsilon, eta, gamma, budget, ep_return,
           ep_steps, ep_dstar):
-    """Run whole episodes of model number ``model`` until ``budget`` steps are spent; per-episode measures out.
+    """Run whole episodes of model number ``model`` until ``budget`` steps are spent.
 
-    Returns (steps simulated, episodes run)."""
+    Per-episode measures go into the ep_* arrays.  Returns (steps simulated, episodes run).
+    """
     dim = s0.shape[0]
     S = np.empty((dim, 1))
     a_buf = np.zeros(1)
@@ -122,6 +124,7 @@ def learn(model, q, visited, rng, s0, p, actions, idx, low, width, tiles, best, 
         episodes += 1
         steps += t
     return steps, episodes
+
 
 @kernel
 def greedy_episode(model, q, s0, p, actions, idx, low, width, tiles, best, inv_scale, fixed,

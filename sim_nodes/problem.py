@@ -22,7 +22,8 @@ from sapga_ros.errors import ConfigError, UnknownProblemError
 
 CONFIG_ENV = 'SAPGA_CONFIG_DIR'
 _FLOAT_RE = re.compile(r'^\s*[+-]?(\d+(\.\d*)?|\.\d+)([eE][+-]?\d+)?\s*$')
-_PI_RE = re.compile(r'^\s*([+-]?)\s*(\d+(?:\.\d*)?|\.\d+)?\s*\*?\s*pi\s*(?:/\s*(\d+(?:\.\d*)?))?\s*$')
+_PI_RE = re.compile(r'^\s*([+-]?)\s*(\d+(?:\.\d*)?|\.\d+)?\s*\*?\s*pi'
+                    r'\s*(?:/\s*(\d+(?:\.\d*)?))?\s*$')
 _NAME_RE = re.compile(r'^[a-z][a-z0-9_]*$')
 MAX_CONFIG_BYTES = 1 << 20
 

@@ -12,8 +12,8 @@ import numpy as np
 
 def acrobot_accel(s, tau, prm):
     t1, t2, w1, w2 = s
-    m1, m2, l1, lc1, lc2, i1, i2, g = (prm[k] for k in ('m1', 'm2', 'l1', 'lc1', 'lc2', 'I1',
-                                                          'I2', 'g'))
+    names = ('m1', 'm2', 'l1', 'lc1', 'lc2', 'I1', 'I2', 'g')
+    m1, m2, l1, lc1, lc2, i1, i2, g = (prm[k] for k in names)
     d1 = m1 * lc1 ** 2 + m2 * (l1 ** 2 + lc2 ** 2 + 2 * l1 * lc2 * np.cos(t2)) + i1 + i2
     d2 = m2 * (lc2 ** 2 + l1 * lc2 * np.cos(t2)) + i2
     phi2 = m2 * lc2 * g * np.cos(t1 + t2)

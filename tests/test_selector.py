@@ -38,9 +38,8 @@ def test_angle_distance_goes_the_short_way_round(acrobot_problem):
         state = acrobot_problem.best_state
         state[i] = TWO_PI - 0.01
         assert select(acrobot_problem, states, state) == 1
-        assert distances(state, states, acrobot_problem.ranges,
-                         acrobot_problem.is_angle) == pytest.approx([0.11 / TWO_PI,
-                                                                      0.02 / TWO_PI])
+        got = distances(state, states, acrobot_problem.ranges, acrobot_problem.is_angle)
+        assert got == pytest.approx([0.11 / TWO_PI, 0.02 / TWO_PI])
 
 
 def test_selection_is_invariant_to_whole_turns(problem, rng):

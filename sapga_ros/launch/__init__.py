@@ -293,6 +293,24 @@ def run_launch(name: str, argv: Sequence[str]) -> int:
     return module.main(list(argv))
 
 
+def launch_main(argv: Sequence[str] | None, parser: Any,
+                run: Callable[[Any, 'Supervisor'], Any],
+                report: Callable[['Supervisor', Any], int]) -> int:
+    """The body of a launch script's main(): parse, supervise ``run``, ``report`` the result.
+
+    Exit codes as ``run_launch`` documents them.
+    """
+    args = parser.parse_args(argv)
+    sup = Supervisor()
+    try:
+        with sup, sup.handle_signals():
+            result = run(args, sup)
+    except SapgaError as exc:
+        sup.say(f'error: {exc}')
+        return exit_code(exc) if isinstance(exc, LaunchError) else 2
+    return report(sup, result)
+
+
 def exit_code(exc: BaseException) -> int:
     """The launcher's exit code for a launch that ended with ``exc``."""
     if isinstance(exc, Interrupted):

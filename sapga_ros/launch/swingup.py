@@ -49,7 +49,7 @@ from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
 from sapga_ros.errors import SapgaError
-from sapga_ros.launch import (LaunchError, Supervisor, exit_code, find_executable,
+from sapga_ros.launch import (LaunchError, Supervisor, find_executable, launch_main,
                               write_params_file)
 from sapga_ros.nodes.common import EVENT_QOS, qos_profile, stamp_ns, topic_names
 from sim_nodes.problem import Problem, load_problem
@@ -433,7 +433,8 @@ def run_swingup(args: argparse.Namespace, sup: Supervisor) -> SwingupResult:
     return SwingupResult(ends, stack.recordings(), offline, equal)
 
 
-def print_swingup(sup: Supervisor, result: SwingupResult) -> None:
+def print_swingup(sup: Supervisor, result: SwingupResult) -> int:
+    """Print the summary; 0, or 1 if a lockstep episode differs from the offline one."""
     lines = episode_lines(result.episodes)
     for path in result.recordings:
         lines.append(f'recording: {path}')
@@ -446,20 +447,12 @@ def print_swingup(sup: Supervisor, result: SwingupResult) -> None:
                      + ('every lockstep episode is equal' if result.equal
                         else 'DIFFERENT from the lockstep episodes'))
     sup.say('\n'.join(lines))
+    return 0 if result.equal in (None, True) else 1
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """``sapga launch swingup ...``; the exit code (see ``run_launch``)."""
-    args = build_parser().parse_args(argv)
-    sup = Supervisor()
-    try:
-        with sup, sup.handle_signals():
-            result = run_swingup(args, sup)
-    except SapgaError as exc:
-        sup.say(f'error: {exc}')
-        return exit_code(exc) if isinstance(exc, LaunchError) else 2
-    print_swingup(sup, result)
-    return 0 if result.equal in (None, True) else 1
+    return launch_main(argv, build_parser(), run_swingup, print_swingup)
 
 
 if __name__ == '__main__':

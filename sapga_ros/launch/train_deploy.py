@@ -25,8 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
-from sapga_ros.errors import SapgaError
-from sapga_ros.launch import LaunchError, Supervisor, exit_code
+from sapga_ros.launch import LaunchError, Supervisor, launch_main
 from sapga_ros.launch.swingup import (DeployStack, LaunchRos, StackOptions, episode_lines,
                                       event_summary, finite_number, offline_episode,
                                       positive_int, same_episode)
@@ -136,18 +135,15 @@ def summary_lines(result: TrainDeployResult) -> list[str]:
     return lines
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """``sapga launch train_deploy ...``; the exit code (see ``run_launch``)."""
-    args = build_parser().parse_args(argv)
-    sup = Supervisor()
-    try:
-        with sup, sup.handle_signals():
-            result = run_train_deploy(args, sup)
-    except SapgaError as exc:
-        sup.say(f'error: {exc}')
-        return exit_code(exc) if isinstance(exc, LaunchError) else 2
+def report(sup: Supervisor, result: TrainDeployResult) -> int:
+    """Print the summary; 0 if the ROS episode equals the offline one, else 1."""
     sup.say('\n'.join(summary_lines(result)))
     return 0 if result.equal else 1
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``sapga launch train_deploy ...``; the exit code (see ``run_launch``)."""
+    return launch_main(argv, build_parser(), run_train_deploy, report)
 
 
 if __name__ == '__main__':

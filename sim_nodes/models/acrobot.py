@@ -45,7 +45,7 @@ def accelerations(t1, t2, w1, w2, tau, k):
     s1, c1 = sincos(t1)
     s2, c2 = sincos(t2)
     c12 = c1 * c2 - s1 * s2                      # cos(theta1 + theta2)
-    d1 = d1c + d1v * c2                          # M11 = m1 lc1^2 + m2 (l1^2 + lc2^2 + 2 l1 lc2 c2) + I1 + I2
+    d1 = d1c + d1v * c2                          # M11 (constants: see ``constants``)
     d2 = d2c + d2v * c2                          # M12 = m2 (lc2^2 + l1 lc2 c2) + I2
     phi2 = g2 * c12                              # dV/dtheta2 = m2 lc2 g cos(theta1 + theta2)
     phi1 = -m2l1lc2 * s2 * w2 * (w2 + 2.0 * w1) + g1 * c1 + phi2  # Coriolis + dV/dtheta1
