@@ -18,6 +18,8 @@ import argparse
 import csv
 import json
 import math
+import os
+import signal
 import sys
 import time
 from pathlib import Path
@@ -27,14 +29,14 @@ from sapga_ros.errors import SapgaError
 EXIT_USAGE = 2
 
 
-def _int_at_least(minimum: int, what: str):
-    """An argparse type: an integer >= minimum (1e6-style numbers allowed)."""
+def _int_at_least(minimum: int, what: str, maximum: int = 10 ** 15):
+    """An argparse type: an integer in [minimum, maximum] (1e6-style numbers allowed)."""
     def parse(text: str) -> int:
         try:
             value = int(float(text)) if 'e' in text.lower() else int(text)
         except (ValueError, OverflowError):
             value = minimum - 1
-        if value < minimum:
+        if not minimum <= value <= maximum:
             raise argparse.ArgumentTypeError(f'expected {what}, got {text!r}')
         return value
     return parse
@@ -42,6 +44,7 @@ def _int_at_least(minimum: int, what: str):
 
 _positive_int = _int_at_least(1, 'a positive integer')
 _nonneg_int = _int_at_least(0, 'an integer >= 0')
+_episode_steps = _int_at_least(1, 'an integer in [1, 1000000]', 1_000_000)
 
 
 def _delta(text: str) -> float:
@@ -86,7 +89,7 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument('policy', help='policy file (sapga-policy/1 or sapga-qtable/1)')
     e.add_argument('--delta', type=_delta, help='goal difficulty (default: the policy\'s '
                                                 'training delta, else the problem\'s)')
-    e.add_argument('--max-steps', type=_positive_int, help='N_step (default: the problem\'s)')
+    e.add_argument('--max-steps', type=_episode_steps, help='N_step (default: the problem\'s)')
     e.add_argument('--json', action='store_true', help='print one JSON object')
 
     x = sub.add_parser('exemplars', help='list, plot or prune a policy\'s exemplars')
@@ -125,6 +128,18 @@ def build_parser() -> argparse.ArgumentParser:
     la.add_argument('name', nargs='?', help='swingup or train_deploy')
     la.add_argument('args', nargs=argparse.REMAINDER)
     return parser
+
+
+def check_output_file(path: Path, option: str) -> None:
+    """Refuse, before any work is done, an output path that cannot be written."""
+    if path.is_dir():
+        raise SapgaError(f'{option} {path}: is a directory')
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise SapgaError(f'{option} {path}: cannot create its folder ({exc.strerror})') from exc
+    if not os.access(path.parent, os.W_OK) or (path.exists() and not os.access(path, os.W_OK)):
+        raise SapgaError(f'{option} {path}: not writable')
 
 
 def _default_out(args) -> Path:
@@ -189,13 +204,27 @@ def cmd_train(args) -> int:
                          params=SapgaParams(n_pop=args.pop, n_child=args.children,
                                             l_min=args.l_min, l_max=args.l_max))
     out = Path(args.out) if args.out else _default_out(args)
+    check_output_file(out, '--out')
+    if args.checkpoint and Path(args.checkpoint).exists() and not Path(args.checkpoint).is_dir():
+        raise SapgaError(f'--checkpoint {args.checkpoint}: exists and is not a directory')
     progress = _Progress(args.steps, args.quiet)
+    interrupted = []
+
+    def on_sigint(signum, frame):  # finish the generation, then save what was found
+        if interrupted:
+            raise KeyboardInterrupt
+        interrupted.append(signum)
+        print('\nsapga train: interrupted; saving the best so far (Ctrl-C again to abandon)',
+              file=sys.stderr)
+
+    previous = signal.signal(signal.SIGINT, on_sigint)
     try:
         if args.method == 'sapga':
-            result = train_sapga(config, initial, progress)
+            result = train_sapga(config, initial, progress, should_stop=lambda: bool(interrupted))
         else:
-            result = train_ql(config, progress)
+            result = train_ql(config, progress, should_stop=lambda: bool(interrupted))
     finally:
+        signal.signal(signal.SIGINT, previous)
         progress.close()
     result.policy.save(out)
     log = out.with_suffix('.log.csv')
@@ -206,7 +235,7 @@ def cmd_train(args) -> int:
           f"({'achieved' if meta['run_delta_star'] <= meta['delta'] else 'not achieved'} "
           f"delta {meta['delta']}), {meta['steps']:,d} steps")
     print(f'policy: {out}\nlog: {log}')
-    return 0
+    return 130 if interrupted else 0
 
 
 def load_any_policy(path: str):
@@ -281,9 +310,11 @@ def cmd_exemplars(args) -> int:
         print(f'{int((counts > 0).sum())} of {len(policy)} exemplars referred to in its '
               f'episode of {ep.steps} steps')
     if args.plot:
+        check_output_file(Path(args.plot), '--plot')
         plot_exemplars(policy, ep, counts, args.plot)
         print(f'plot: {args.plot}', file=sys.stderr)
     if args.prune_unused:
+        check_output_file(Path(args.prune_unused), '--prune-unused')
         keep = counts > 0
         pruned = ExemplarPolicy(policy.problem, policy.states[keep], policy.actions[keep],
                                 meta={**policy.meta, 'pruned_from': str(args.policy)})
@@ -344,11 +375,18 @@ def main(argv: list[str] | None = None) -> int:
     except SapgaError as exc:
         print(f'sapga {args.command}: error: {exc}', file=sys.stderr)
         return EXIT_USAGE
+    except BrokenPipeError:
+        return 0
+    except OSError as exc:
+        where = f'{exc.filename}: ' if exc.filename else ''
+        print(f'sapga {args.command}: error: {where}{exc.strerror or exc}', file=sys.stderr)
+        return EXIT_USAGE
+    except MemoryError:
+        print(f'sapga {args.command}: error: out of memory', file=sys.stderr)
+        return EXIT_USAGE
     except KeyboardInterrupt:
         print(f'sapga {args.command}: interrupted', file=sys.stderr)
         return 130
-    except BrokenPipeError:
-        return 0
 
 
 if __name__ == '__main__':

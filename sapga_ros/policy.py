@@ -67,7 +67,7 @@ class ExemplarPolicy:
             'actions': list(values),
             'exemplars': [{'state': [float(x) for x in s], 'action': values[a]}
                           for s, a in zip(self.states, self.actions)],
-            'meta': self.meta,
+            'meta': json_safe(self.meta),
         }
 
     def to_json(self) -> str:
@@ -98,6 +98,17 @@ def excerpt(value: Any, limit: int = 60) -> str:
     return text if len(text) <= limit else text[:limit] + '...'
 
 
+def json_safe(value: Any) -> Any:
+    """``value`` with every non-finite float replaced by None (JSON has no inf or NaN)."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_safe(v) for v in value]
+    return value
+
+
 def _check_finite_tree(value: Any, where: str, depth: int = 0) -> None:
     """Every number inside ``value`` (free-form meta) is finite."""
     if depth > 50:
@@ -115,7 +126,10 @@ def _check_finite_tree(value: Any, where: str, depth: int = 0) -> None:
 def _finite(value: Any, where: str) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise PolicyFileError(f'{where}: expected a number, got {excerpt(value, 40)}')
-    number = float(value)
+    try:
+        number = float(value)
+    except OverflowError:
+        raise PolicyFileError(f'{where}: number too large ({excerpt(value, 40)})') from None
     if not math.isfinite(number):
         raise PolicyFileError(f'{where}: not a finite number ({json.dumps(number)})')
     return number

@@ -28,7 +28,7 @@ from sapga_ros.errors import CheckpointError, PolicyFileError
 from sapga_ros.evaluation import Episode
 from sapga_ros.fileio import write_atomic
 from sapga_ros.policy import (MAX_POLICY_BYTES, _check_finite_tree, _finite, _reject_constant,
-                              excerpt)
+                              excerpt, json_safe)
 from sim_nodes.goal import goal_arrays, goal_delta
 from sim_nodes.jit import kernel
 from sim_nodes.models import model_id
@@ -195,7 +195,7 @@ class QTable:
         cells = np.flatnonzero(self.visited)
         doc = {'format': FORMAT, 'problem': pr.name, 'state_names': list(pr.state_names),
                'actions': list(pr.actions), 'state_indices': list(pr.ql_state_indices),
-               'tiles_per_dim': pr.ql_tiles_per_dim, 'meta': self.meta}
+               'tiles_per_dim': pr.ql_tiles_per_dim, 'meta': json_safe(self.meta)}
         head = json.dumps(doc, indent=1, allow_nan=False)[:-2]
         rows = ',\n  '.join(f'"{c}": ' + json.dumps([float(v) for v in self.q[c]])
                             for c in cells)
@@ -232,7 +232,7 @@ def qtable_from_document(doc: dict, source: str) -> QTable:
     if not isinstance(doc['q'], dict):
         raise PolicyFileError(f'{source}: q: expected an object of cell: [values]')
     for key, values in doc['q'].items():
-        if not (key.isascii() and key.isdigit()) or int(key) >= cells:
+        if not (key.isascii() and key.isdigit()) or len(key) > 18 or int(key) >= cells:
             raise PolicyFileError(f'{source}: q: cell {excerpt(key)} is not in 0..{cells - 1}')
         if not isinstance(values, list) or len(values) != len(pr.actions):
             raise PolicyFileError(f'{source}: q[{key}]: expected {len(pr.actions)} numbers')

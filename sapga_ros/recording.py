@@ -502,7 +502,7 @@ def parse_event(text: str | None) -> dict[str, Any] | None:
         return None
     try:
         doc = json.loads(text)
-    except ValueError:
+    except (ValueError, RecursionError):  # malformed or hostile: not an event
         return None
     return doc if isinstance(doc, dict) else None
 

@@ -73,6 +73,12 @@ def _pack(individuals: list[Individual], prefix: str) -> dict[str, np.ndarray]:
 def _unpack(problem: Problem, arrays: dict, prefix: str) -> list[Individual]:
     try:
         lengths = arrays[f'{prefix}_lengths']
+        states, actions = arrays[f'{prefix}_states'], arrays[f'{prefix}_actions']
+        if np.any(lengths < 1) or lengths.sum() != len(actions) or len(states) != len(actions):
+            raise ValueError('exemplar counts do not add up')
+        if not np.all(np.isfinite(states)) or np.any(actions < 0) or \
+                np.any(actions >= len(problem.actions)):
+            raise ValueError('non-finite states or action indices out of range')
         bounds = np.concatenate([[0], np.cumsum(lengths)])
         out = []
         for k in range(len(lengths)):

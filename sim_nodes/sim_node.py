@@ -72,16 +72,16 @@ def check_setting(name: str, value: Any) -> str | None:
     """Why ``value`` is not acceptable for parameter ``name``, or None."""
     if name == 'mode' and value not in MODES:
         return f'mode: expected one of {", ".join(MODES)}, got {value!r}'
-    if name == 'real_time_factor' and not (math.isfinite(value) and value > 0):
-        return f'real_time_factor: expected a finite number > 0, got {value}'
+    if name == 'real_time_factor' and not (math.isfinite(value) and 1e-3 <= value <= 1e4):
+        return f'real_time_factor: expected a number in [0.001, 10000], got {value}'
     if name == 'delta' and not (math.isfinite(value) and value >= 0):
         return f'delta: expected a finite number >= 0, got {value}'
     if name == 'n_step' and value < 1:
         return f'n_step: expected an integer >= 1, got {value}'
     if name == 'max_episodes' and value < 0:
         return f'max_episodes: expected an integer >= 0 (0 = unlimited), got {value}'
-    if name == 'republish_period' and not (math.isfinite(value) and value >= 0):
-        return f'republish_period: expected a finite number of seconds >= 0, got {value}'
+    if name == 'republish_period' and not (math.isfinite(value) and 0 <= value <= 3600):
+        return f'republish_period: expected seconds in [0, 3600], got {value}'
     return None
 
 

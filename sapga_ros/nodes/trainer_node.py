@@ -121,8 +121,8 @@ def check_setting(name: str, value: Any) -> str | None:
     if name in ('seed', 'jobs') and value < 0:
         return f'{name}: expected an integer >= 0, got {value}'
     if name in ('diagnostics_period', 'log_period') and not (math.isfinite(value)
-                                                             and value > 0):
-        return f'{name}: expected a finite number of seconds > 0, got {value}'
+                                                             and 1e-3 <= value <= 3600):
+        return f'{name}: expected seconds in [0.001, 3600], got {value}'
     return None
 
 
