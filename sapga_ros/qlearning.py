@@ -128,7 +128,7 @@ def learn(model, q, visited, rng, s0, p, actions, idx, low, width, tiles, best, 
 
 @kernel
 def greedy_episode(model, q, s0, p, actions, idx, low, width, tiles, best, inv_scale, fixed,
-                   is_angle, delta, n_step, tr_state, tr_cell, tr_reward):
+                   is_angle, delta, n_step, tr_state, tr_action, tr_reward):
     dim = s0.shape[0]
     S = np.empty((dim, 1))
     S[:, 0] = s0
@@ -146,7 +146,7 @@ def greedy_episode(model, q, s0, p, actions, idx, low, width, tiles, best, inv_s
         a_buf[0] = actions[a]
         step_lanes(model, S, a_buf, p, 1, r_buf)
         total += r_buf[0]
-        tr_cell[t] = a
+        tr_action[t] = a
         tr_reward[t] = r_buf[0]
         t += 1
         tr_state[t, :] = s

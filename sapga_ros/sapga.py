@@ -13,7 +13,7 @@ generator, counters) is what a checkpoint saves (``state_dict`` / ``from_state``
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -153,7 +153,3 @@ class SapGA:
     def stop(self, budget: int) -> dict:
         """Termination reasons met (empty: go on)."""
         return {'budget': budget} if self.stats.steps >= budget else {}
-
-    @property
-    def params_dict(self) -> dict:
-        return asdict(self.params)
