@@ -26,7 +26,7 @@ $(STAMP): $(VENV)/.requirements setup.py setup.cfg package.xml resource/sapga_ro
 	touch $(STAMP)
 
 demo: $(STAMP)
-	$(PY) -m sapga_ros.demo --out $(OUT)
+	$(PY) -m sapga_ros.cli.demo --out $(OUT)
 
 test: $(STAMP)
 	$(PY) -m pytest -q tests

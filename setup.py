@@ -28,9 +28,9 @@ except ImportError:  # setuptools < 64 has no PEP 660 editable installs
 
 PACKAGE = 'sapga_ros'
 EXECUTABLES = {
-    'sapga': 'sapga_ros.cli:main',
-    'acrobot_sim': 'sim_nodes.sim_node:acrobot_main',
-    'pdip_sim': 'sim_nodes.sim_node:pdip_main',
+    'sapga': 'sapga_ros.cli.main:main',
+    'acrobot_sim': 'sim_nodes.ros.sim_node:acrobot_main',
+    'pdip_sim': 'sim_nodes.ros.sim_node:pdip_main',
     'policy_node': 'sapga_ros.nodes.policy_node:main',
     'trainer_node': 'sapga_ros.nodes.trainer_node:main',
     'recorder_node': 'sapga_ros.nodes.recorder_node:main',

@@ -1,16 +1,12 @@
-"""Typed errors of sapga_ros: each says what is wrong and where (file, field, value)."""
+"""Typed errors of sapga_ros: each says what is wrong and where (file, field, value).
 
+The root ``SapgaError`` and the configuration errors belong to the environment layer
+(``sim_nodes.errors``) and are re-exported here.
+"""
+from sim_nodes.errors import ConfigError, SapgaError, UnknownProblemError
 
-class SapgaError(Exception):
-    """Base of every user-facing error; the CLI prints its message on one line."""
-
-
-class ConfigError(SapgaError):
-    """A problem configuration (msg_configs/*.yaml) is missing, malformed or inconsistent."""
-
-
-class UnknownProblemError(ConfigError):
-    """No configuration exists for the requested problem name."""
+__all__ = ['SapgaError', 'ConfigError', 'UnknownProblemError', 'PolicyFileError',
+           'CheckpointError', 'McapError']
 
 
 class PolicyFileError(SapgaError):

@@ -6,46 +6,72 @@ the compiler may not reassociate or contract (FMA) floating-point operations, so
 call and a vectorised batch compute bit-identical results.
 
 Cache: numba keys a cached function by its own source file only, but our kernels inline
-code from several files.  Unless ``NUMBA_CACHE_DIR`` is set, the cache therefore lives in a
-folder named by a digest of every kernel source file, so an edited model never runs stale
-machine code.
+code from several files.  Unless ``NUMBA_CACHE_DIR`` is set, each kernel is therefore
+cached in a folder named by a digest of every kernel source file of this environment
+package and of the package that defines the kernel (files that use ``@kernel``), so an
+edited model, selector or engine never runs stale machine code.  No package above this one
+is named here: a package's kernels are found from the kernel's own source file.
 """
+from __future__ import annotations
+
 import hashlib
 import os
+from functools import lru_cache
 from pathlib import Path
 
-_ROOT = Path(__file__).resolve().parents[1]
-KERNEL_SOURCES = ('sim_nodes/jit.py', 'sim_nodes/goal.py', 'sim_nodes/models/*.py',
-                  'sapga_ros/selector.py', 'sapga_ros/kernels.py', 'sapga_ros/qlearning.py')
+import numba.core.config
+from numba import njit
+
+_ENV_DIR = Path(__file__).resolve().parent
+_USER_CACHE_DIR = os.environ.get('NUMBA_CACHE_DIR')
+OPTIONS = {'cache': True, 'error_model': 'numpy'}
 
 
-def kernel_digest() -> str:
-    """Digest of the source files the compiled kernels are made from."""
+@lru_cache(maxsize=None)
+def kernel_files(package_dir: Path) -> tuple[Path, ...]:
+    """The source files under ``package_dir`` that define compiled kernels."""
+    return tuple(p for p in sorted(package_dir.rglob('*.py'))
+                 if '@kernel' in p.read_text(encoding='utf-8', errors='replace'))
+
+
+def package_dir(source_file: str) -> Path:
+    """The top-level package folder holding ``source_file``."""
+    path = Path(source_file).resolve().parent
+    while (path.parent / '__init__.py').is_file():
+        path = path.parent
+    return path
+
+
+@lru_cache(maxsize=None)
+def kernel_digest(package: Path = _ENV_DIR) -> str:
+    """Digest of the kernel sources of this package and of ``package``."""
     h = hashlib.sha256()
-    for pattern in KERNEL_SOURCES:
-        for path in sorted(_ROOT.glob(pattern)):
-            h.update(path.name.encode())
+    for directory in sorted({_ENV_DIR, package}):
+        for path in (Path(__file__).resolve(), *kernel_files(directory)):
+            h.update(str(path.relative_to(directory.parent)).encode())
             h.update(path.read_bytes())
     return h.hexdigest()[:16]
 
 
-def _default_cache_dir() -> str:
+def cache_dir(source_file: str) -> str:
+    """Where the kernel defined in ``source_file`` is cached."""
+    if _USER_CACHE_DIR:
+        return _USER_CACHE_DIR
     base = os.environ.get('XDG_CACHE_HOME') or os.path.join(os.path.expanduser('~'), '.cache')
-    return os.path.join(base, 'sapga_ros', f'numba-{kernel_digest()}')
+    return os.path.join(base, 'sapga_ros', f'numba-{kernel_digest(package_dir(source_file))}')
 
 
-if not os.environ.get('NUMBA_CACHE_DIR'):
-    os.environ['NUMBA_CACHE_DIR'] = _default_cache_dir()
-    import numba.core.config
-    numba.core.config.reload_config()
-
-from numba import njit  # noqa: E402 - after the cache folder is chosen
-
-OPTIONS = {'cache': True, 'error_model': 'numpy'}
+def _compile(fn, extra: dict):
+    saved = numba.core.config.CACHE_DIR
+    numba.core.config.CACHE_DIR = cache_dir(fn.__code__.co_filename)  # read at decoration
+    try:
+        return njit(**OPTIONS, **extra)(fn)
+    finally:
+        numba.core.config.CACHE_DIR = saved
 
 
 def kernel(fn=None, **extra):
     """``@kernel`` / ``@kernel(inline='always', parallel=True)``: numba njit with OPTIONS."""
     if fn is None:
-        return lambda f: njit(**OPTIONS, **extra)(f)
-    return njit(**OPTIONS)(fn)
+        return lambda f: _compile(f, extra)
+    return _compile(fn, {})

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from sapga_ros.errors import ConfigError, UnknownProblemError
+from sim_nodes.errors import ConfigError, UnknownProblemError
 
 CONFIG_ENV = 'SAPGA_CONFIG_DIR'
 _FLOAT_RE = re.compile(r'^\s*[+-]?(\d+(\.\d*)?|\.\d+)([eE][+-]?\d+)?\s*$')

@@ -42,7 +42,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, Int32, String
 from std_srvs.srv import Trigger
 
-from sapga_ros.nodes.common import EVENT_QOS, stamp_ns, topic_names
+from sim_nodes.ros.common import EVENT_QOS, stamp_ns, topic_names
 from sim_nodes.problem import Problem
 
 WAIT_S = 30.0  # [s] generous bound for any single wait: a failing test, not a timing check

@@ -6,7 +6,7 @@ import sys
 
 import pytest
 
-SAPGA = [sys.executable, '-m', 'sapga_ros.cli']
+SAPGA = [sys.executable, '-m', 'sapga_ros.cli.main']
 
 
 def sapga(*args, cwd=None):

@@ -1,4 +1,4 @@
-"""Policy evaluation (sapga_ros/evaluation.py, sapga_ros/kernels.py; paper section 3,
+"""Policy evaluation (sapga_ros/evaluation/: evaluator.py, engine.py; paper section 3,
 SPEC 2 and 3.1): the parallel lane batch equals single episodes bit for bit, episodes follow
 the model and the selector, the goal test, the exemplars marked as used, thread-count
 independence, and agreement with the plain NumPy episode of sim_nodes/reference.py."""
@@ -8,8 +8,8 @@ import numba
 import numpy as np
 import pytest
 
-from sapga_ros.evaluation import Evaluator, set_jobs
-from sapga_ros.policy import ExemplarPolicy
+from sapga_ros.evaluation.evaluator import Evaluator, set_jobs
+from sapga_ros.exemplars.policy import ExemplarPolicy
 from sim_nodes import reference
 from sim_nodes.goal import delta_of
 from sim_nodes.models import model_module

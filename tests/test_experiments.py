@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from sapga_ros.errors import ConfigError
-from sapga_ros.experiments import load_experiments, resample, run_experiments
+from sapga_ros.training.experiments import load_experiments, resample, run_experiments
 
 
 def test_table2_defines_the_papers_four_experiments():

@@ -8,14 +8,14 @@ import numpy as np
 import pytest
 
 from sapga_ros.errors import CheckpointError, PolicyFileError
-from sapga_ros.policy import ExemplarPolicy, policy_from_json
-from sapga_ros.recording import parse_event
-from sapga_ros.sapga import SapgaParams
-from sapga_ros.train import TrainConfig, _pack, _unpack, train_sapga
+from sapga_ros.exemplars.policy import ExemplarPolicy, policy_from_json
+from sapga_ros.recording.mcap_io import parse_event
+from sapga_ros.optim.sapga import SapgaParams
+from sapga_ros.training.loop import TrainConfig, _pack, _unpack, train_sapga
 from sim_nodes.problem import load_problem
-from sim_nodes.sim_node import check_setting
+from sim_nodes.ros.sim_node import check_setting
 
-SAPGA = [sys.executable, '-m', 'sapga_ros.cli']
+SAPGA = [sys.executable, '-m', 'sapga_ros.cli.main']
 
 
 def _doc(problem):
@@ -58,7 +58,7 @@ def test_damaged_checkpoint_population_is_refused():
     """Action indices out of range or non-finite states in a checkpoint are refused."""
     pr = load_problem('acrobot')
     rng = np.random.default_rng(0)
-    from sapga_ros.sapga import Individual
+    from sapga_ros.optim.sapga import Individual
     pop = [Individual(ExemplarPolicy(pr, rng.uniform(pr.low, pr.high, (5, 4)), [0, 1, 2, 0, 1]))]
     arrays = _pack(pop, 'pop')
     arrays['pop_actions'][0] = 7

@@ -1,4 +1,4 @@
-"""Tests of ``sapga inspect`` (sapga_ros.inspect_mcap) on synthetic recordings.
+"""Tests of ``sapga inspect`` (sapga_ros.recording.inspect) on synthetic recordings.
 
 The recordings are written with the core writer (no ROS graph), so every number the summary
 should report is known in advance.
@@ -14,9 +14,9 @@ from rclpy.serialization import serialize_message
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, Int32, String
 
-from sapga_ros.inspect_mcap import inspect_main, run_inspect
-from sapga_ros.recording import (METADATA_NAME, ROLE_TYPES, ChannelInfo, McapRecordingWriter,
-                                 qos_profiles_yaml, read_recording)
+from sapga_ros.recording.inspect import inspect_main, run_inspect
+from sapga_ros.recording.mcap_io import (METADATA_NAME, ROLE_TYPES, ChannelInfo,
+                                         McapRecordingWriter, qos_profiles_yaml, read_recording)
 from sim_nodes.goal import delta_of
 from sim_nodes.problem import load_problem
 

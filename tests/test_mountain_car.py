@@ -4,9 +4,9 @@ import math
 
 import numpy as np
 
-from sapga_ros.evaluation import Evaluator
-from sapga_ros.exemplar_tools import plot_exemplars, policy_map
-from sapga_ros.policy import ExemplarPolicy
+from sapga_ros.evaluation.evaluator import Evaluator
+from sapga_ros.exemplars.tools import plot_exemplars, policy_map
+from sapga_ros.exemplars.policy import ExemplarPolicy
 from sim_nodes import goal
 from sim_nodes.models.mountain_car import mdp_step
 from sim_nodes.problem import load_problem

@@ -2,9 +2,9 @@
 import numpy as np
 import pytest
 
-from sapga_ros.operators import (deduplicate, random_exemplars, random_policy, refresh,
-                                 uniform_crossover)
-from sapga_ros.policy import ExemplarPolicy
+from sapga_ros.optim.operators import (deduplicate, random_exemplars, random_policy, refresh,
+                                       uniform_crossover)
+from sapga_ros.exemplars.policy import ExemplarPolicy
 from sim_nodes.problem import load_problem
 
 

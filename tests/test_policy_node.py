@@ -13,10 +13,10 @@ from rclpy.parameter import Parameter
 from std_srvs.srv import Trigger
 
 from ros_helpers import Probe, isolated_ros
-from sapga_ros.nodes.common import JointStateLayout
+from sim_nodes.ros.common import JointStateLayout
 from sapga_ros.nodes.policy_node import PolicyNode
-from sapga_ros.policy import ExemplarPolicy
-from sapga_ros.selector import distances
+from sapga_ros.exemplars.policy import ExemplarPolicy
+from sapga_ros.exemplars.distance import distances
 from sim_nodes.problem import load_problem
 
 

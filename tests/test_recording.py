@@ -1,4 +1,4 @@
-"""Tests of the MCAP recorder: sapga_ros.recording (core) and sapga_ros.nodes.recorder_node.
+"""Tests of the MCAP recorder: sapga_ros.recording.mcap_io (core) and nodes.recorder_node.
 
 The messages are published by a test node in this process; the recorder runs in this process
 (round trip) or as a child process (hard kill, SIGTERM).  Every ROS test uses its own domain
@@ -31,9 +31,9 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, Int32, String
 
 from sapga_ros.errors import McapError
-from sapga_ros.recording import (SEPARATOR, ChannelInfo, McapRecordingWriter, RecordingSession,
-                                 create_exclusive, message_definition, qos_profiles_yaml,
-                                 read_recording, share_dirs)
+from sapga_ros.recording.mcap_io import (SEPARATOR, ChannelInfo, McapRecordingWriter,
+                                         RecordingSession, create_exclusive, message_definition,
+                                         qos_profiles_yaml, read_recording, share_dirs)
 
 TIMEOUT = 20.0          # [s] upper bound of every wait; never asserted on
 JOINTS = ['shoulder', 'elbow']
@@ -253,7 +253,7 @@ def test_times_are_receive_time_and_header_stamp(recorded):
 
 def test_inspect_summarises_the_recorder_file(recorded, capsys):
     """sapga inspect --json finds the recorded episode, its steps, return and actions."""
-    from sapga_ros.inspect_mcap import run_inspect
+    from sapga_ros.recording.inspect import run_inspect
 
     path, published = recorded
     assert run_inspect(str(path), json_out=True) == 0
@@ -396,7 +396,7 @@ def test_hard_kill_keeps_every_complete_chunk(context, ros_env, tmp_path):
 
 
 def decode_all(rec):
-    from sapga_ros.recording import decode_messages
+    from sapga_ros.recording.mcap_io import decode_messages
     messages, failed = decode_messages(rec)
     assert not failed
     return [m.value for m in messages]

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from sapga_ros.errors import CheckpointError
-from sapga_ros.evaluation import Evaluator
-from sapga_ros.sapga import SapGA, SapgaParams
-from sapga_ros.train import TrainConfig, train_sapga
+from sapga_ros.evaluation.evaluator import Evaluator
+from sapga_ros.optim.sapga import SapGA, SapgaParams
+from sapga_ros.training.loop import TrainConfig, train_sapga
 from sim_nodes.problem import load_problem
 
 SMALL = SapgaParams(n_pop=20, n_child=4, l_min=10, l_max=20)
@@ -117,7 +117,7 @@ def test_corrupt_checkpoint_is_refused_and_missing_one_named(tmp_path):
 def test_initial_exemplars_enter_the_population():
     """Hand-written exemplars given as prior knowledge are the first initial policies."""
     problem = load_problem('acrobot')
-    from sapga_ros.policy import ExemplarPolicy
+    from sapga_ros.exemplars.policy import ExemplarPolicy
     prior = ExemplarPolicy(problem, [[problem.initial[0], 0.0, 0.0, 0.0]] * 1, [2])
     ga = SapGA.create(problem, SMALL, seed=0, initial=[prior])
     np.testing.assert_array_equal(ga.population[0].policy.states, prior.states)

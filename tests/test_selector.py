@@ -1,4 +1,4 @@
-"""The nearest-neighbour action selector (sapga_ros/selector.py; SPEC 3.1): normalised,
+"""The nearest-neighbour action selector (sapga_ros/exemplars/distance.py; SPEC 3.1): normalised,
 circular distances, ties to the lowest index, and agreement with the plain NumPy statement
 in sim_nodes/reference.py."""
 from __future__ import annotations
@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from sapga_ros.selector import distances, nearest, normalize_into, normalize_states
+from sapga_ros.exemplars.distance import distances, nearest, normalize_into, normalize_states
 from sim_nodes import reference
 from sim_nodes.models.common import TWO_PI
 

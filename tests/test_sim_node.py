@@ -1,4 +1,4 @@
-"""Simulator node (sim_nodes/sim_node.py) over real Fast DDS: lockstep fidelity to the offline
+"""Simulator node (sim_nodes/ros/sim_node.py) over real Fast DDS: lockstep fidelity to the offline
 evaluator, reset, bad commands, realtime mode and parameter validation."""
 from __future__ import annotations
 
@@ -13,13 +13,13 @@ from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
 from ros_helpers import PROBE_QOS, Probe, isolated_ros
-from sapga_ros.evaluation import Evaluator
-from sapga_ros.nodes.common import JointStateLayout
+from sapga_ros.evaluation.evaluator import Evaluator
+from sim_nodes.ros.common import JointStateLayout
 from sapga_ros.nodes.policy_node import PolicyNode
-from sapga_ros.policy import ExemplarPolicy
+from sapga_ros.exemplars.policy import ExemplarPolicy
 from sim_nodes.models import model_module
 from sim_nodes.problem import load_problem
-from sim_nodes.sim_node import SimNode
+from sim_nodes.ros.sim_node import SimNode
 
 TICK_NS = 50_000_000  # sim time per published new state of the pendulums: 0.05 s
 PARAMS_DIR = Path(__file__).resolve().parents[1] / 'msg_configs' / 'params'

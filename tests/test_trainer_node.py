@@ -16,12 +16,12 @@ from std_srvs.srv import Trigger
 
 from ros_helpers import Probe, isolated_ros
 from sapga_ros.errors import ConfigError
-from sapga_ros.evaluation import Evaluator
+from sapga_ros.evaluation.evaluator import Evaluator
 from sapga_ros.nodes.policy_node import PolicyNode
 from sapga_ros.nodes.trainer_node import TrainerNode
-from sapga_ros.policy import ExemplarPolicy, load_policy, policy_from_json
-from sapga_ros.sapga import SapgaParams
-from sapga_ros.train import TrainConfig, train_sapga
+from sapga_ros.exemplars.policy import ExemplarPolicy, load_policy, policy_from_json
+from sapga_ros.optim.sapga import SapgaParams
+from sapga_ros.training.loop import TrainConfig, train_sapga
 from sim_nodes.problem import load_problem
 
 # A tiny run: a few generations of a small population, on one thread.

@@ -51,7 +51,7 @@ from std_srvs.srv import Trigger
 from sapga_ros.errors import SapgaError
 from sapga_ros.launch import (LaunchError, Supervisor, find_executable, launch_main,
                               write_params_file)
-from sapga_ros.nodes.common import EVENT_QOS, qos_profile, stamp_ns, topic_names
+from sim_nodes.ros.common import EVENT_QOS, qos_profile, stamp_ns, topic_names
 from sim_nodes.problem import Problem, load_problem
 
 MODES = ('lockstep', 'realtime')
@@ -274,7 +274,7 @@ class DeployStack:
         state per step plus each initial state, a start and an end event per episode.  After
         ``RECORDED_S`` the launch goes on, saying what the recording lacks.
         """
-        from sapga_ros.recording import read_recording
+        from sapga_ros.recording.mcap_io import read_recording
         t = self.ros.node.topics
         steps = sum(int(e.get('step') or 0) for e in ends)
         want = {t['reward']: steps, t['state']: steps + len(ends), t['event']: 2 * len(ends)}
@@ -310,7 +310,7 @@ class DeployStack:
 
 def offline_episode(policy: Any, delta: float) -> dict:
     """The policy's offline evaluation (``sapga eval --json``): return, delta*, steps."""
-    from sapga_ros.cli import run_policy_episode
+    from sapga_ros.evaluation.any_policy import run_policy_episode
     return run_policy_episode(policy, delta).summary()
 
 
@@ -403,7 +403,7 @@ def policy_delta(policy: Any, given: float | None) -> float:
 
 def run_swingup(args: argparse.Namespace, sup: Supervisor) -> SwingupResult:
     """The launch itself, under ``sup`` (which stops the nodes whatever happens)."""
-    from sapga_ros.policy import load_policy
+    from sapga_ros.exemplars.policy import load_policy
     problem = load_problem(args.problem) if args.problem else None
     policy = load_policy(Path(args.policy).resolve(), problem)   # checked before any start
     problem = policy.problem

@@ -3,5 +3,5 @@
 ``common`` holds what every node shares (QoS and topic names from msg_configs, the
 JointState <-> state-vector conversion, the standard ``main()`` runner); each other module
 holds one ``Node`` subclass and its ``main``.  The simulator node lives in
-``sim_nodes.sim_node``.  The topic contract is docs/ros_interface.md.
+``sim_nodes.ros.sim_node``.  The topic contract is docs/ros_interface.md.
 """

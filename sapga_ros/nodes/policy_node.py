@@ -40,11 +40,10 @@ from std_msgs.msg import Float64, Int32
 from std_srvs.srv import Trigger
 
 from sapga_ros.errors import ConfigError, SapgaError
-from sapga_ros.nodes.common import (QUIET_PUBLISHER, THROTTLE_S, JointStateLayout,
-                                    MessageError, qos_profile, run_node, stamp_ns,
-                                    steady_clock, topic_names)
-from sapga_ros.policy import ExemplarPolicy, load_policy, policy_from_json
-from sapga_ros.selector import nearest, normalize_into, normalize_states
+from sim_nodes.ros.common import (QUIET_PUBLISHER, THROTTLE_S, JointStateLayout, MessageError,
+                                  qos_profile, run_node, stamp_ns, steady_clock, topic_names)
+from sapga_ros.exemplars.policy import ExemplarPolicy, load_policy, policy_from_json
+from sapga_ros.exemplars.distance import nearest, normalize_into, normalize_states
 from sim_nodes.problem import Problem, load_problem
 
 POLL_S = 0.02  # [s] how often a pending load checks for the service and its deadline

@@ -1,6 +1,7 @@
 """Recorder node (SPEC 4): subscribes to a problem's topics and writes them to MCAP.
 
-A thin shell around ``sapga_ros.recording``: every subscription is raw (the CDR bytes as they
+A thin shell around ``sapga_ros.recording.mcap_io``:
+every subscription is raw (the CDR bytes as they
 arrived), and each message goes unchanged to the core writer with its receive time
 (``log_time``) and publish time (``header.stamp`` if the type has one, else the publisher's
 source timestamp).  Files are MCAP profile ``ros2`` with full ``ros2msg`` definitions, so
@@ -53,10 +54,10 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.signals import SignalHandlerOptions
 
 from sapga_ros.errors import SapgaError
-from sapga_ros.recording import (COMPRESSIONS, DEFAULT_CHUNK_SIZE, DEFAULT_ROLE_TOPICS,
-                                 ROLE_TYPES, SPLITS, ChannelInfo, RecordingSession,
-                                 full_type_name, message_definition, publish_time_ns,
-                                 qos_profiles_yaml, utc_stamp)
+from sapga_ros.recording.mcap_io import (COMPRESSIONS, DEFAULT_CHUNK_SIZE, DEFAULT_ROLE_TOPICS,
+                                         ROLE_TYPES, SPLITS, ChannelInfo, RecordingSession,
+                                         full_type_name, message_definition, publish_time_ns,
+                                         qos_profiles_yaml, utc_stamp)
 from sim_nodes.problem import load_problem
 
 _RELIABILITY = {'reliable': ReliabilityPolicy.RELIABLE,

@@ -65,10 +65,10 @@ from rclpy.parameter import Parameter
 from std_srvs.srv import Trigger
 
 from sapga_ros.errors import ConfigError, SapgaError
-from sapga_ros.nodes.common import run_node, steady_clock
-from sapga_ros.policy import ExemplarPolicy, load_policy
-from sapga_ros.sapga import SapgaParams
-from sapga_ros.train import TrainConfig
+from sim_nodes.ros.common import run_node, steady_clock
+from sapga_ros.exemplars.policy import ExemplarPolicy, load_policy
+from sapga_ros.optim.sapga import SapgaParams
+from sapga_ros.training.loop import TrainConfig
 from sim_nodes.problem import Problem, load_problem
 
 METHODS = ('sapga', 'ql')
@@ -298,9 +298,9 @@ class TrainerNode(Node):
     # the run (training thread) --------------------------------------------------------------
 
     def _run(self, config: TrainConfig, out: str) -> None:
-        from sapga_ros.cli import _write_log
-        from sapga_ros.qlearning import train_ql
-        from sapga_ros.train import train_sapga
+        from sapga_ros.training.loop import write_log
+        from sapga_ros.training.ql_run import train_ql
+        from sapga_ros.training.loop import train_sapga
         try:
             if config.method == 'sapga':
                 # stop only after a generation: a run always has a best policy to save
@@ -314,7 +314,7 @@ class TrainerNode(Node):
                 self._served = Served(result.policy, 'training')
             if out:
                 result.policy.save(out)
-                _write_log(Path(out).with_suffix('.log.csv'), result.history)
+                write_log(Path(out).with_suffix('.log.csv'), result.history)
             meta = result.policy.meta
             stopped = ' (stopped early)' if self._stop.is_set() else ''
             self._set_status(state='done', message=(

@@ -16,7 +16,7 @@ from __future__ import annotations
 import importlib
 from types import ModuleType
 
-from sapga_ros.errors import ConfigError
+from sim_nodes.errors import ConfigError
 
 MODELS = ('acrobot', 'pdip', 'mountain_car')
 

@@ -1,6 +1,6 @@
 """One compiled entry point over every model: ``step_lanes(model, ...)``.
 
-Kernels that run episodes (``sapga_ros.kernels``, ``sapga_ros.qlearning``) are module-level
+Kernels that run episodes (the episode engine, Q-learning) are module-level
 functions taking the model's number, so numba's disk cache serves them in every process.
 A new model adds one branch here (and its name to ``sim_nodes.models.MODELS``).
 """

@@ -11,9 +11,9 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from sapga_ros.kernels import BLOCKS_PER_THREAD, episode_kernels
-from sapga_ros.policy import ExemplarPolicy
-from sapga_ros.selector import normalize_states
+from sapga_ros.evaluation.engine import BLOCKS_PER_THREAD, episode_kernels
+from sapga_ros.exemplars.policy import ExemplarPolicy
+from sapga_ros.exemplars.distance import normalize_states
 from sim_nodes.goal import goal_arrays
 from sim_nodes.problem import Problem
 

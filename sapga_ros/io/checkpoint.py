@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from sapga_ros.errors import CheckpointError
-from sapga_ros.fileio import write_atomic
+from sapga_ros.io.atomic import write_atomic
 
 FORMAT = 'sapga-checkpoint/1'
 FILENAME = 'checkpoint.npz'

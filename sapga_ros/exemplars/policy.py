@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from sapga_ros.errors import PolicyFileError, SapgaError
-from sapga_ros.fileio import write_atomic
+from sapga_ros.io.atomic import write_atomic
 from sim_nodes.problem import Problem, load_problem
 
 FORMAT = 'sapga-policy/1'

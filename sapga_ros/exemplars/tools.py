@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sapga_ros.policy import ExemplarPolicy
+from sapga_ros.exemplars.policy import ExemplarPolicy
 
 
 def exemplar_table(policy: ExemplarPolicy, counts: np.ndarray) -> list[dict]:
@@ -39,7 +39,7 @@ def _break_wraps(x: np.ndarray, y: np.ndarray, angle: bool):
 
 def policy_map(policy: ExemplarPolicy, resolution: int = 200):
     """Action chosen over a grid of a 2-D problem's state space: (xs, ys, action values)."""
-    from sapga_ros.selector import nearest, normalize_into, normalize_states
+    from sapga_ros.exemplars.distance import nearest, normalize_into, normalize_states
     problem = policy.problem
     xs = np.linspace(problem.low[0], problem.high[0], resolution)
     ys = np.linspace(problem.low[1], problem.high[1], resolution)

@@ -12,9 +12,9 @@ import time
 
 import numpy as np
 
-from sapga_ros.evaluation import Evaluator, set_jobs
-from sapga_ros.operators import random_exemplars
-from sapga_ros.policy import ExemplarPolicy
+from sapga_ros.evaluation.evaluator import Evaluator, set_jobs
+from sapga_ros.optim.operators import random_exemplars
+from sapga_ros.exemplars.policy import ExemplarPolicy
 from sim_nodes import reference
 from sim_nodes.problem import load_problem
 

@@ -17,9 +17,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from sapga_ros.evaluation import BatchResult
-from sapga_ros.operators import random_policy, refresh, uniform_crossover
-from sapga_ros.policy import ExemplarPolicy
+from sapga_ros.evaluation.evaluator import BatchResult
+from sapga_ros.optim.operators import random_policy, refresh, uniform_crossover
+from sapga_ros.exemplars.policy import ExemplarPolicy
 from sim_nodes.problem import Problem
 
 

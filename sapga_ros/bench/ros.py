@@ -2,7 +2,7 @@
 through DDS and what one selection costs in the policy node, each printed beside a baseline
 measured in the same process (the compiled offline episode kernel).
 
-    python -m sapga_ros.bench_ros [--problem acrobot] [--steps 4000] [--processes]
+    python -m sapga_ros.bench.ros [--problem acrobot] [--steps 4000] [--processes]
 
 * lockstep loop: ``SimNode`` (lockstep) and ``PolicyNode`` exchange state and command over
   Fast DDS, both nodes on one executor thread of this process (``--processes``: the two
@@ -26,8 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from sapga_ros.evaluation import Evaluator
-from sapga_ros.policy import ExemplarPolicy
+from sapga_ros.evaluation.evaluator import Evaluator
+from sapga_ros.exemplars.policy import ExemplarPolicy
 from sim_nodes.problem import Problem, load_problem
 
 N_EXEMPLARS = 100  # L_max of SAP-GA: the largest policy the trainer produces
@@ -65,7 +65,7 @@ def bench_selection(problem: Problem, policy: ExemplarPolicy, repeats: int = 200
     import rclpy
     from rclpy.parameter import Parameter
 
-    from sapga_ros.nodes.common import JointStateLayout
+    from sim_nodes.ros.common import JointStateLayout
     from sapga_ros.nodes.policy_node import PolicyNode, PreparedPolicy
 
     domain = _domain()
@@ -107,7 +107,7 @@ def bench_lockstep(problem: Problem, policy: ExemplarPolicy, steps: int = 4000,
     from rclpy.parameter import Parameter
 
     from sapga_ros.nodes.policy_node import PolicyNode, PreparedPolicy
-    from sim_nodes.sim_node import SimNode
+    from sim_nodes.ros.sim_node import SimNode
 
     domain = _domain()
     _env(domain)
@@ -150,7 +150,7 @@ def bench_lockstep_processes(problem: Problem, policy: ExemplarPolicy,
     from rclpy.node import Node
     from std_msgs.msg import String
 
-    from sapga_ros.nodes.common import EVENT_QOS, topic_names
+    from sim_nodes.ros.common import EVENT_QOS, topic_names
 
     domain = _domain()
     _env(domain)

@@ -32,7 +32,7 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 
-from sapga_ros.errors import ConfigError, SapgaError
+from sim_nodes.errors import ConfigError, SapgaError
 from sim_nodes.problem import Problem
 
 THROTTLE_S = 2.0  # [s] between repeats of a warning about bad input

@@ -32,8 +32,9 @@ from typing import Any
 import numpy as np
 
 from sapga_ros.errors import ConfigError, McapError, SapgaError
-from sapga_ros.recording import (DEFAULT_ROLE_TOPICS, ROLE_TYPES, DecodedMessage, Recording,
-                                 decode_messages, full_type_name, parse_event, read_recording)
+from sapga_ros.recording.mcap_io import (DEFAULT_ROLE_TOPICS, ROLE_TYPES, DecodedMessage,
+                                         Recording, decode_messages, full_type_name, parse_event,
+                                         read_recording)
 
 END_EVENTS = ('goal', 'step_limit', 'reset')
 

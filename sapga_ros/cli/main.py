@@ -15,7 +15,6 @@ wrong and exit with status 2; no traceback.
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import math
 import os
@@ -104,7 +103,7 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument('--json', action='store_true', help='print one JSON object')
     b.add_argument('--ros', action='store_true',
                    help='instead: the lockstep loop through DDS and the policy node\'s '
-                        'selection time (sapga_ros.bench_ros)')
+                        'selection time (sapga_ros.bench.ros)')
     b.add_argument('--problem', default='acrobot', help='with --ros: the problem')
 
     i = sub.add_parser('inspect', help='summarise (and plot) an MCAP recording')
@@ -146,16 +145,6 @@ def _default_out(args) -> Path:
     return Path('runs') / f'{args.problem}-{args.method}-seed{args.seed}.json'
 
 
-def _write_log(path: Path, history: list[dict]) -> None:
-    if not history:
-        return
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, 'w', newline='', encoding='utf-8') as f:
-        writer = csv.DictWriter(f, fieldnames=list(history[0]))
-        writer.writeheader()
-        writer.writerows(history)
-
-
 class _Progress:
     """tqdm bar on a terminal; a line every few seconds otherwise."""
 
@@ -184,10 +173,11 @@ class _Progress:
 
 
 def cmd_train(args) -> int:
-    from sapga_ros.policy import load_policy
-    from sapga_ros.qlearning import train_ql
-    from sapga_ros.sapga import SapgaParams
-    from sapga_ros.train import TrainConfig, train_sapga
+    from sapga_ros.training.loop import write_log
+    from sapga_ros.exemplars.policy import load_policy
+    from sapga_ros.training.ql_run import train_ql
+    from sapga_ros.optim.sapga import SapgaParams
+    from sapga_ros.training.loop import TrainConfig, train_sapga
     from sim_nodes.problem import load_problem
 
     problem = load_problem(args.problem)
@@ -228,7 +218,7 @@ def cmd_train(args) -> int:
         progress.close()
     result.policy.save(out)
     log = out.with_suffix('.log.csv')
-    _write_log(log, result.history)
+    write_log(log, result.history)
     meta = result.policy.meta
     print(f"{problem.name} {args.method}: best value {meta['value']:.3f}, policy delta* "
           f"{meta['delta_star']:.4f}, run delta* {meta['run_delta_star']:.4f} "
@@ -236,27 +226,6 @@ def cmd_train(args) -> int:
           f"delta {meta['delta']}), {meta['steps']:,d} steps")
     print(f'policy: {out}\nlog: {log}')
     return 130 if interrupted else 0
-
-
-def load_any_policy(path: str):
-    """A sapga-policy/1 or sapga-qtable/1 file, told apart by its ``format`` field."""
-    from sapga_ros.policy import load_policy
-    from sapga_ros.qlearning import FORMAT as QFORMAT, parse_json, qtable_from_document
-    from sapga_ros.policy import MAX_POLICY_BYTES
-    p = Path(path)
-    try:
-        size = p.stat().st_size
-    except OSError as exc:
-        raise SapgaError(f'{path}: cannot read ({exc.strerror})') from exc
-    if size > MAX_POLICY_BYTES:
-        return load_policy(p)  # refuses with the size message
-    with open(p, 'rb') as f:
-        head = f.read(4096)
-    if QFORMAT.encode() in head:
-        doc = parse_json(p.read_bytes(), str(p))
-        if isinstance(doc, dict) and doc.get('format') == QFORMAT:
-            return qtable_from_document(doc, str(p))
-    return load_policy(p)
 
 
 def _eval_delta(args, policy) -> float:
@@ -268,15 +237,8 @@ def _eval_delta(args, policy) -> float:
     return policy.problem.default_delta
 
 
-def run_policy_episode(policy, delta: float, max_steps: int | None = None):
-    from sapga_ros.evaluation import Evaluator
-    from sapga_ros.qlearning import QTable
-    if isinstance(policy, QTable):
-        return policy.episode(delta, max_steps)
-    return Evaluator(policy.problem, delta, max_steps).episode(policy)
-
-
 def cmd_eval(args) -> int:
+    from sapga_ros.evaluation.any_policy import load_any_policy, run_policy_episode
     policy = load_any_policy(args.policy)
     delta = _eval_delta(args, policy)
     ep = run_policy_episode(policy, delta, args.max_steps)
@@ -290,10 +252,11 @@ def cmd_eval(args) -> int:
 
 
 def cmd_exemplars(args) -> int:
+    from sapga_ros.evaluation.any_policy import run_policy_episode
     import numpy as np
 
-    from sapga_ros.exemplar_tools import exemplar_table, plot_exemplars
-    from sapga_ros.policy import ExemplarPolicy, load_policy
+    from sapga_ros.exemplars.tools import exemplar_table, plot_exemplars
+    from sapga_ros.exemplars.policy import ExemplarPolicy, load_policy
     policy = load_policy(args.policy)
     delta = _eval_delta(args, policy)
     ep = run_policy_episode(policy, delta)
@@ -326,9 +289,9 @@ def cmd_exemplars(args) -> int:
 
 def cmd_bench(args) -> int:
     if args.ros:
-        from sapga_ros.bench_ros import main as bench_ros
+        from sapga_ros.bench.ros import main as bench_ros
         return bench_ros(['--problem', args.problem, '--processes'])
-    from sapga_ros.bench import run_bench
+    from sapga_ros.bench.batch import run_bench
     result = run_bench()
     if args.json:
         print(json.dumps({k: v for k, v in result.items() if k != 'details'}))
@@ -342,12 +305,12 @@ def cmd_bench(args) -> int:
 
 
 def cmd_inspect(args) -> int:
-    from sapga_ros.inspect_mcap import run_inspect
+    from sapga_ros.recording.inspect import run_inspect
     return run_inspect(args.file, json_out=args.json, plot=args.plot)
 
 
 def cmd_experiment(args) -> int:
-    from sapga_ros.experiments import run_experiments
+    from sapga_ros.training.experiments import run_experiments
     only = None
     if args.only:
         try:

@@ -56,8 +56,8 @@ def load_experiments(name: str) -> tuple[list[Experiment], int]:
 
 def _run_one(args: tuple) -> dict:
     exp, seed, steps = args
-    from sapga_ros.qlearning import train_ql
-    from sapga_ros.train import TrainConfig, train_sapga
+    from sapga_ros.training.ql_run import train_ql
+    from sapga_ros.training.loop import TrainConfig, train_sapga
     cfg = TrainConfig(problem=exp.problem, method=exp.method, delta=exp.delta, steps=steps,
                       seed=seed, jobs=1)
     result = train_sapga(cfg) if exp.method == 'sapga' else train_ql(cfg)

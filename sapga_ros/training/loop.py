@@ -8,18 +8,20 @@
 """
 from __future__ import annotations
 
+import csv
 import time
+from pathlib import Path
 from dataclasses import asdict, dataclass, field
 from typing import Callable
 
 import numpy as np
 
 from sapga_ros import __version__
-from sapga_ros.checkpoint import load_checkpoint, save_checkpoint
+from sapga_ros.io.checkpoint import load_checkpoint, save_checkpoint
 from sapga_ros.errors import CheckpointError
-from sapga_ros.evaluation import Evaluator, set_jobs
-from sapga_ros.policy import ExemplarPolicy
-from sapga_ros.sapga import Individual, SapGA, SapgaParams, Stats
+from sapga_ros.evaluation.evaluator import Evaluator, set_jobs
+from sapga_ros.exemplars.policy import ExemplarPolicy
+from sapga_ros.optim.sapga import Individual, SapGA, SapgaParams, Stats
 from sim_nodes.problem import Problem, load_problem
 
 
@@ -195,3 +197,14 @@ def _best_policy(config: TrainConfig, ga: SapGA, delta: float, jobs: int) -> Exe
         'time': time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime()),
     }
     return ExemplarPolicy(ga.problem, best.policy.states, best.policy.actions, meta=meta)
+
+
+def write_log(path: Path, history: list[dict]) -> None:
+    """Write a run's log rows (one per progress report) as CSV."""
+    if not history:
+        return
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, 'w', newline='', encoding='utf-8') as f:
+        writer = csv.DictWriter(f, fieldnames=list(history[0]))
+        writer.writeheader()
+        writer.writerows(history)

@@ -1,7 +1,7 @@
 """The main job (``make demo``): evolve an Acrobot policy, deploy it through ROS 2, record and
 summarise the episode.
 
-    python -m sapga_ros.demo --out DIR [--steps N] [--seed S] [--delta D] [--jobs J]
+    python -m sapga_ros.cli.demo --out DIR [--steps N] [--seed S] [--delta D] [--jobs J]
 
 1. ``sapga launch train_deploy``: the trainer node runs SAP-GA (paper Table 2, experiment 2:
    acrobot, delta 0.02, 30 M steps, seed 0 by default) on every core; the policy node loads
@@ -33,7 +33,7 @@ STEPS = 30_000_000       # seed 0 reaches delta* 0.0136 (its best policy 0.0183)
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog='python -m sapga_ros.demo', description=__doc__.split(
+    p = argparse.ArgumentParser(prog='python -m sapga_ros.cli.demo', description=__doc__.split(
         '\n\n')[0], formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument('--out', default='out', metavar='DIR',
                    help='policy, checkpoint, recording and plot go here (default out)')
@@ -49,7 +49,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the demo; the exit status."""
-    from sapga_ros.inspect_mcap import run_inspect
+    from sapga_ros.recording.inspect import run_inspect
 
     args = build_parser().parse_args(argv)
     out = Path(args.out)

@@ -21,7 +21,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import prange
 
-from sapga_ros.selector import nearest, normalize_into
+from sapga_ros.exemplars.distance import nearest, normalize_into
 from sim_nodes.goal import goal_delta
 from sim_nodes.jit import kernel
 from sim_nodes.models import model_id

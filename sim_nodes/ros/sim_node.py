@@ -44,10 +44,10 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, String
 from std_srvs.srv import Trigger
 
-from sapga_ros.errors import ConfigError
-from sapga_ros.nodes.common import (CLOCK_QOS, EVENT_QOS, QUIET_PUBLISHER, THROTTLE_S,
-                                    JointStateLayout, qos_profile, run_node, steady_clock,
-                                    topic_names)
+from sim_nodes.errors import ConfigError
+from sim_nodes.ros.common import (CLOCK_QOS, EVENT_QOS, QUIET_PUBLISHER, THROTTLE_S,
+                                  JointStateLayout, qos_profile, run_node, steady_clock,
+                                  topic_names)
 from sim_nodes.goal import goal_arrays, goal_delta
 from sim_nodes.models import model_module
 from sim_nodes.problem import load_problem

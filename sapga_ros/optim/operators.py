@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sapga_ros.policy import ExemplarPolicy
+from sapga_ros.exemplars.policy import ExemplarPolicy
 from sim_nodes.problem import Problem
 
 
