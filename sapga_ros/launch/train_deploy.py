@@ -12,7 +12,7 @@ service, run the episode in lockstep, record it, and compare with the offline ev
    the policy node's ``load_policy``, which fetches the best policy from the trainer's
    ``get_policy``; then the simulator re-publishes its waiting state, the policy answers it
    and the episode runs in lockstep.
-3. After the episode's end event every node is stopped, the recorder finishes its MCAP file,
+3. After the episode's end event every node is stopped, the recorder finishes its bag,
    and the summary compares the ROS episode (return, delta*, steps) with the offline
    evaluation of the policy the trainer served: in lockstep they are equal, exactly.
 """
@@ -45,6 +45,7 @@ class TrainDeployResult:
     equal: bool
     recordings: list[Path]
     end_event: dict
+    recording_error: str | None = None  # why the bag is not whole, if it is not
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -115,7 +116,8 @@ def run_train_deploy(args: argparse.Namespace, sup: Supervisor) -> TrainDeployRe
     offline = offline_episode(policy, delta)
     episode = event_summary(end)
     return TrainDeployResult(policy_file, trainer, episode, offline,
-                             same_episode(episode, offline), stack.recordings(), end)
+                             same_episode(episode, offline), stack.recordings(), end,
+                             stack.check_recording([end]))
 
 
 def summary_lines(result: TrainDeployResult) -> list[str]:
@@ -132,13 +134,15 @@ def summary_lines(result: TrainDeployResult) -> list[str]:
                     f'NO: ROS {e} vs offline {o}'))
     lines += [f'recording: {p}' for p in result.recordings] or [
         "recording: none written (see the recorder's output)"]
+    if result.recording_error:
+        lines.append(f'error: {result.recording_error}')
     return lines
 
 
 def report(sup: Supervisor, result: TrainDeployResult) -> int:
-    """Print the summary; 0 if the ROS episode equals the offline one, else 1."""
+    """Print the summary; 0 if the ROS episode equals the offline one and the bag is whole."""
     sup.say('\n'.join(summary_lines(result)))
-    return 0 if result.equal else 1
+    return 0 if result.equal and not result.recording_error else 1
 
 
 def main(argv: Sequence[str] | None = None) -> int:
