@@ -1,15 +1,24 @@
-"""Bounded file access: regular files only, never more than a stated number of bytes.
+"""Bounded input: regular files only, never more than a stated number of bytes or levels.
 
 ``open_regular`` opens without blocking (a FIFO or device given as a file would otherwise
 freeze the reader until a writer appears) and refuses anything that is not a regular file;
 ``read_bounded`` reads a whole file of at most ``limit`` bytes.  Errors are ``OSError``
 subclasses with a one-line message: callers add the path and their own error type.
+
+``load_yaml`` parses YAML (safe types only) nested at most ``max_depth`` levels, without
+aliases: the nesting is measured on libyaml's event stream (iterative) before anything is
+built (PyYAML's composers recurse: deep nesting crashes the C one and takes seconds in the
+Python one).  Errors are ``yaml.YAMLError``.
 """
 from __future__ import annotations
 
 import os
 import stat
-from typing import BinaryIO
+from typing import Any, BinaryIO
+
+import yaml
+
+MAX_YAML_DEPTH = 64
 
 
 class NotRegularFile(OSError):
@@ -43,3 +52,19 @@ def read_bounded(path: str | os.PathLike, limit: int) -> bytes:
     if len(data) > limit:
         raise TooLarge(f'larger than {limit} bytes')
     return data
+
+
+def load_yaml(text: str | bytes, max_depth: int = MAX_YAML_DEPTH) -> Any:
+    """``yaml.safe_load`` of ``text`` if it nests at most ``max_depth`` levels, no aliases."""
+    loader = getattr(yaml, 'CSafeLoader', yaml.SafeLoader)
+    depth = 0
+    for event in yaml.parse(text, Loader=loader):
+        if isinstance(event, (yaml.SequenceStartEvent, yaml.MappingStartEvent)):
+            depth += 1
+            if depth > max_depth:
+                raise yaml.YAMLError(f'nested deeper than {max_depth} levels')
+        elif isinstance(event, (yaml.SequenceEndEvent, yaml.MappingEndEvent)):
+            depth -= 1
+        elif isinstance(event, yaml.AliasEvent):
+            raise yaml.YAMLError('aliases are not accepted')
+    return yaml.load(text, Loader=loader)

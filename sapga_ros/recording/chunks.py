@@ -17,7 +17,7 @@ from mcap.stream_reader import breakup_chunk
 from sapga_ros.errors import McapError
 
 MAX_CHUNK_BYTES = 64 << 20      # rosbag2's largest preset chunk is 4 MiB
-BUDGET_FLOOR = 16 << 20         # [bytes] decompressed, whatever the file size
+BUDGET_FLOOR = 8 << 20          # [bytes] decompressed, whatever the file size
 BUDGET_RATIO = 100              # ROS messages rarely compress 10:1; bombs do 10000:1
 
 

@@ -13,7 +13,7 @@ qos.cpp) exactly:
   (``keep_last``, ``reliable``, ``transient_local``, ``automatic``) and durations as
   ``{sec, nsec}``; in an MCAP channel's metadata the same list as a YAML string.
 
-``read_bag_metadata`` reads a ``metadata.yaml`` bounded in size and nesting.
+``read_bag_metadata`` reads a ``metadata.yaml`` bounded in size (4 MiB) and nesting.
 """
 from __future__ import annotations
 
@@ -25,7 +25,7 @@ from typing import Any, Mapping, Sequence
 import yaml
 
 from sapga_ros.errors import McapError
-from sapga_ros.io.bounded import read_bounded
+from sapga_ros.io.bounded import load_yaml, read_bounded
 
 VERSION = 9                                 # rosbag2 metadata version of ROS 2 Jazzy
 STORAGE_ID = 'mcap'
@@ -34,7 +34,7 @@ METADATA_FILE = 'metadata.yaml'
 RECORD_NAME = 'rosbag2'                     # the MCAP Metadata record rosbag2 writes
 RMW_DURATION_INFINITE = (1 << 63) - 1       # [ns]
 NO_TIME = (1 << 63) - 1                     # rosbag2's starting_time before any message
-MAX_METADATA_BYTES = 16 << 20
+MAX_METADATA_BYTES = 4 << 20            # some 20000 storage files
 
 
 def storage_file_name(bag: str | os.PathLike, index: int) -> str:
@@ -169,13 +169,13 @@ def read_bag_metadata(bag: str | os.PathLike) -> dict[str, Any]:
     """
     path = Path(bag) / METADATA_FILE
     try:
-        doc = yaml.safe_load(read_bounded(path, MAX_METADATA_BYTES).decode('utf-8'))
+        doc = load_yaml(read_bounded(path, MAX_METADATA_BYTES).decode('utf-8'))
     except FileNotFoundError as exc:
         raise McapError(f'{path}: no such file') from exc
     except OSError as exc:
         raise McapError(f'{path}: cannot read ({exc.strerror or exc})') from exc
-    except (UnicodeDecodeError, yaml.YAMLError, RecursionError) as exc:
-        raise McapError(f'{path}: not YAML ({type(exc).__name__})') from exc
+    except (UnicodeDecodeError, yaml.YAMLError) as exc:
+        raise McapError(f'{path}: not YAML ({" ".join(str(exc).split())[:120]})') from exc
     info = doc.get('rosbag2_bagfile_information') if isinstance(doc, dict) else None
     files = info.get('relative_file_paths') if isinstance(info, dict) else None
     if not isinstance(files, list) or not all(isinstance(p, str) and p for p in files):

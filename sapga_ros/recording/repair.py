@@ -28,7 +28,7 @@ from mcap.writer import CompressionType, Writer
 
 from sapga_ros.errors import McapError
 from sapga_ros.io.atomic import write_atomic
-from sapga_ros.io.bounded import open_regular
+from sapga_ros.io.bounded import load_yaml, open_regular
 from sapga_ros.recording.chunks import Budget, chunk_records
 from sapga_ros.recording.metadata import (METADATA_FILE, RECORD_NAME, BagMetadata, FileInfo,
                                           TopicInfo)
@@ -133,8 +133,8 @@ def repair_file(path: str | os.PathLike) -> int:
 
 def _topic(info: Any) -> TopicInfo:
     try:
-        qos = yaml.safe_load(info.metadata.get('offered_qos_profiles', '') or '[]')
-    except (yaml.YAMLError, RecursionError):
+        qos = load_yaml(info.metadata.get('offered_qos_profiles', '') or '[]')
+    except yaml.YAMLError:
         qos = []
     return TopicInfo(info.name, info.type, qos if isinstance(qos, list) else [],
                      info.metadata.get('topic_type_hash', ''), info.message_encoding)
@@ -144,8 +144,8 @@ def _custom_data(files: list[FileRecording]) -> dict[str, str]:
     for f in reversed(files):
         text = f.metadata.get(RECORD_NAME, {}).get('serialized_metadata', '')
         try:
-            custom = (yaml.safe_load(text) or {}).get('custom_data')
-        except (yaml.YAMLError, RecursionError, AttributeError):
+            custom = (load_yaml(text) or {}).get('custom_data')
+        except (yaml.YAMLError, AttributeError):
             custom = None
         if isinstance(custom, dict):
             return {str(k): str(v) for k, v in custom.items()}
