@@ -295,9 +295,12 @@ def test_times_are_receive_time_and_header_stamp(recorded):
 
 def test_episode_split_makes_one_bag_of_one_file_per_episode(context, tmp_path):
     """split:=episode starts a new storage file of the same bag at each start event, named
-    <bag>_<i>.mcap; readers see one bag; a 300-digit episode number is just metadata."""
+    <bag>_<i>.mcap; readers see one bag; a 300-digit episode number is just metadata, a
+    deeply nested event just a message."""
     huge = int('9' * 300)
-    messages = (episode_messages(3, 1) + episode_messages(4, 2) + episode_messages(2, huge))
+    nested = ('event', String(data='[' * 100_000 + ']' * 100_000))
+    messages = (episode_messages(3, 1) + [nested] + episode_messages(4, 2)
+                + episode_messages(2, huge))
     bag, published = record(context, tmp_path, messages, split='episode')
     names = [f'{bag.name}_{i}.mcap' for i in range(3)]
     assert sorted(p.name for p in bag.iterdir()) == sorted(names + ['metadata.yaml'])

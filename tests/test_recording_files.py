@@ -91,6 +91,24 @@ def test_episode_split_makes_one_bag_that_readers_open_whole(tmp_path):
         [7] * 15
 
 
+def test_the_gap_check_names_what_a_bag_lacks(tmp_path):
+    """recording_gaps (what a launch checks before it reports) counts events, rewards,
+    states and commands against the episodes' end events."""
+    from sapga_ros.recording.verify import recording_gaps
+
+    session = write_episodes(tmp_path / 'b', 2, 5)
+    session.close()
+    rec = read_recording(tmp_path / 'b')
+    ends = [{'event': 'goal', 'step': 5}] * 2
+    roles = {'event': '/episode_event', 'reward': '/reward', 'state': '/joint_states',
+             'command': '/command'}
+    assert recording_gaps(rec, roles, ends, lockstep=False) == ['0 of 12 states']
+    del rec.messages[3]         # a reward
+    assert recording_gaps(rec, roles, ends) == ['9 of 10 rewards', '0 of 12 states',
+                                                '0 of 11 commands']
+    assert recording_gaps(rec, roles, ends[:1] * 3)[0] == '2 of 3 start events'
+
+
 def test_a_bag_is_never_overwritten(tmp_path):
     """An existing directory is refused, as rosbag2 refuses it."""
     (tmp_path / 'b').mkdir()

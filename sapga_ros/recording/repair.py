@@ -48,33 +48,32 @@ class ReindexResult:
     metadata_written: bool = False
 
 
-def _records(path: Path, budget: Budget) -> Iterator[Any]:
-    """Every record of an MCAP file up to the first damage, chunks opened (bounded)."""
+def _raw_records(path: Path) -> Iterator[Any]:
+    """Every record of an MCAP file up to the first damage, chunks unopened."""
     with open_regular(path) as f:
         reader = StreamReader(f, emit_chunks=True,
                               record_size_limit=max(os.fstat(f.fileno()).st_size, 1))
         try:
-            for record in reader.records:
-                if isinstance(record, Chunk):
-                    yield from chunk_records(record, budget, str(path))
-                else:
-                    yield record
+            yield from reader.records
         except Exception:  # noqa: BLE001 - the damaged tail: stop where it starts
             return
 
 
+def _records(path: Path, budget: Budget) -> Iterator[Any]:
+    """Every record of an MCAP file up to the first damage, chunks opened (bounded)."""
+    try:
+        for record in _raw_records(path):
+            if isinstance(record, Chunk):
+                yield from chunk_records(record, budget, str(path))
+            else:
+                yield record
+    except McapError:       # a chunk that does not open: the damage starts there
+        return
+
+
 def _first_compression(path: Path) -> str:
     """The compression of the file's first chunk ('zstd' if it has none)."""
-    with open_regular(path) as f:
-        reader = StreamReader(f, emit_chunks=True,
-                              record_size_limit=max(os.fstat(f.fileno()).st_size, 1))
-        try:
-            for record in reader.records:
-                if isinstance(record, Chunk):
-                    return record.compression
-        except Exception:  # noqa: BLE001 - damaged before any chunk
-            pass
-    return 'zstd'
+    return next((r.compression for r in _raw_records(path) if isinstance(r, Chunk)), 'zstd')
 
 
 def _rewrite(path: Path, out_f: Any, budget: Budget) -> int:
