@@ -229,10 +229,14 @@ def message_chunks(path: Path, chunks: int, per_chunk: int) -> Path:
 
 
 def max_rss_of_inspect(path: Path) -> tuple[int, str, int]:
-    """(exit status, stderr, peak RSS [MiB]) of `sapga inspect PATH` in a fresh process."""
-    code = ('import resource, sys\nfrom sapga_ros.cli import main\n'
+    """(exit status, stderr, peak RSS [MiB]) of `sapga inspect PATH` in a fresh process.
+
+    The peak is VmHWM of /proc/self/status: that of the process's own memory since exec
+    (getrusage's ru_maxrss would count the forking test process too)."""
+    code = ('import re, sys\nfrom sapga_ros.cli import main\n'
             f'rc = main.main(["inspect", {str(path)!r}])\n'
-            'print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss // 1024)\n'
+            'status = open("/proc/self/status").read()\n'
+            'print(int(re.search(r"VmHWM:\\s+(\\d+) kB", status).group(1)) // 1024)\n'
             'sys.exit(rc)')
     done = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
                           timeout=120)
