@@ -475,6 +475,37 @@ def test_hard_kill_loses_nothing_flushed_and_reindex_completes_the_bag(
     assert read_recording(bag).complete
 
 
+def test_a_topic_published_with_another_type_is_recorded_as_published(
+        context, ros_env, tmp_path):
+    """The problem says command is std_msgs/Float64; a publisher of another type on it is
+    recorded with its own type (schema and all), not missed."""
+    from std_msgs.msg import Float32
+
+    proc = start_recorder(tmp_path, ros_env, 'flush_period:=0.1')
+    node = Node('float32_publisher', context=context)
+    pub = node.create_publisher(Float32, 'command', DEPTH)
+    bag = tmp_path / 'bag'
+    try:
+        deadline = time.monotonic() + TIMEOUT
+        while pub.get_subscription_count() < 1:
+            assert time.monotonic() < deadline, 'the recorder never subscribed as Float32'
+            time.sleep(0.05)
+        pub.publish(Float32(data=1.5))
+        deadline = time.monotonic() + TIMEOUT
+        while read_count(bag) < 1:
+            assert time.monotonic() < deadline, 'the Float32 command was not recorded'
+            time.sleep(0.05)
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=TIMEOUT) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        node.destroy_node()
+    rec = read_recording(bag)
+    assert rec.topics['/command'].type == 'std_msgs/msg/Float32'
+    assert [m.value.data for m in decode_messages(rec)[0]] == [1.5]
+
+
 @pytest.mark.parametrize('sig', [signal.SIGTERM, signal.SIGINT])
 def test_sigterm_and_ctrl_c_finish_the_bag(context, ros_env, tmp_path, sig):
     """SIGTERM or Ctrl-C makes the recorder finish the bag (footer, metadata.yaml), exit 0."""

@@ -187,44 +187,47 @@ class RecorderNode(Node):
     def _offers(self, topic: str) -> list[QoSProfile]:
         return [info.qos_profile for info in self.get_publishers_info_by_topic(topic)]
 
-    def _subscribe(self, topic: str, type_name: str, qos: QoSProfile) -> None:
+    def _subscribe(self, topic: str, type_name: str, qos: QoSProfile) -> bool:
         try:
             message_definition(type_name)       # the schema must be writable
             msg_type = message_class(type_name)
         except SapgaError as exc:
             self.get_logger().error(f'not recording {topic}: {exc}')
-            return
+            return False
         sub = self.create_subscription(msg_type, topic,
                                        functools.partial(self._on_message, topic, type_name),
                                        qos, raw=True)
         self._subs[topic] = (sub, type_name, qos)
+        return True
 
     def _check_graph(self) -> None:
-        """Subscribe to pending topics (type known or now on the graph); re-subscribe a
-        topic whose new publisher the subscription's QoS cannot match."""
-        graph = dict(self.get_topic_names_and_types())
+        """Subscribe to pending topics (type known or now published); subscribe again to a
+        topic whose publishers use another type (nothing recorded yet) or offer less than
+        the subscription asks (its QoS could not match them)."""
         for topic, type_name in list(self._pending.items()):
-            type_name = type_name or next(iter(graph.get(topic, [])), None)
+            publishers = self.get_publishers_info_by_topic(topic)
+            type_name = type_name or next((p.topic_type for p in publishers), None)
             if type_name:
                 del self._pending[topic]
-                self._subscribe(topic, type_name,
-                                adapt_to_offers(self._base_qos(topic), self._offers(topic)))
+                self._subscribe(topic, type_name, adapt_to_offers(
+                    self._base_qos(topic), [p.qos_profile for p in publishers]))
         for topic, (sub, type_name, qos) in list(self._subs.items()):
-            offers = self._offers(topic)
-            types = graph.get(topic, [])
+            publishers = self.get_publishers_info_by_topic(topic)
+            offers = [p.qos_profile for p in publishers]
+            types = sorted({p.topic_type for p in publishers})
             if types and type_name not in types and not self._recorded(topic):
                 self.get_logger().warning(f'{topic}: published as {types[0]}, not {type_name}: '
                                           f'recording {types[0]}')
-                type_name, qos = types[0], adapt_to_offers(qos, offers)
+                self.destroy_subscription(sub)      # DDS: one type per topic and process
+                del self._subs[topic]
+                if not self._subscribe(topic, types[0], adapt_to_offers(qos, offers)):
+                    self._pending[topic] = None
             elif incompatible(qos, offers):
                 new = adapt_to_offers(qos, offers)
                 self.get_logger().warning(f'{topic}: a publisher offers less than '
                                           f'{describe(qos)}: subscribing {describe(new)}')
-                qos = new
-            else:
-                continue
-            self._subscribe(topic, type_name, qos)
-            self.destroy_subscription(sub)
+                if self._subscribe(topic, type_name, new):
+                    self.destroy_subscription(sub)
 
     def _recorded(self, topic: str) -> bool:
         """Whether the bag has the topic (its type and QoS are then fixed)."""
