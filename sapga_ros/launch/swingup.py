@@ -7,13 +7,13 @@ The problem is the policy file's; delta is ``--delta``, else the policy's traini
 (``meta.delta``), else the problem's default.  The order makes the recording whole and a
 lockstep episode exact:
 
-1. the recorder, the simulator (lockstep, silent: it waits for the recorder before its
-   first episode starts, then at the first state without re-publishing it) and the policy
-   node without a policy start;
-2. the launcher waits until the ROS graph joins them all (every topic has its publisher
+1. the recorder and the policy node start; the policy file goes to the policy node (its
+   ``policy_file`` parameter);
+2. the simulator starts (lockstep, silent: it waits for the recorder before its first
+   episode starts, then at the first state without re-publishing it);
+3. the launcher waits until the ROS graph joins them all (every topic has its publisher
    and subscribers) and the recorder's ``ready`` service says it hears every publisher of
    every recorded topic, then a settling moment;
-3. the policy file goes to the policy node (its ``policy_file`` parameter);
 4. the simulator is let go: in lockstep it re-publishes the waiting state, the policy
    answers it and the episodes run step by step; in realtime mode it switches to realtime
    (``mode``, ``real_time_factor``) and holds command 0 until the policy's first answer, as
@@ -208,8 +208,8 @@ class DeployStack:
     topics: dict[str, str] = field(default_factory=dict)   # role -> resolved topic name
 
     def start(self) -> None:
-        """Start the recorder, the simulator (lockstep, silent, waiting for the recorder)
-        and the policy node."""
+        """Start the recorder and the policy node (the simulator comes once the policy node
+        has its policy: ``start_sim``)."""
         o = self.opts
         o.out.mkdir(parents=True, exist_ok=True)
         self.bag = free_bag_path(o.out, f'{o.problem.name}_{utc_stamp()}')
@@ -219,12 +219,17 @@ class DeployStack:
                                                  'output_dir': str(o.out),
                                                  'bag': self.bag.name,
                                                  'delta': float(o.delta)})
+        self.spawn('policy', 'policy_node', {'problem': o.problem.name})
+
+    def start_sim(self) -> None:
+        """Start the simulator: lockstep, silent, its first episode once the recorder is
+        ready (``wait_for_recorder``)."""
+        o = self.opts
         self.spawn('sim', sim_executable(o.problem), {
             'problem': o.problem.name, 'mode': 'lockstep', 'delta': float(o.delta),
             'auto_reset': True, 'max_episodes': o.episodes, 'republish_period': 0.0,
             'real_time_factor': float(o.real_time_factor), 'wait_for_recorder': 'recorder',
             'recorder_timeout': CONNECT_TIMEOUT_S})
-        self.spawn('policy', 'policy_node', {'problem': o.problem.name})
 
     def spawn(self, name: str, exe: str, params: dict[str, Any]) -> None:
         """Start package executable ``exe`` as child ``name`` with ``params``."""
@@ -438,9 +443,10 @@ def run_swingup(args: argparse.Namespace, sup: Supervisor) -> SwingupResult:
         with tempfile.TemporaryDirectory(prefix='sapga-launch-') as tmp:
             stack = DeployStack(sup, ros, opts, Path(tmp))
             stack.start()
-            stack.wait_connected()
             ros.set_parameters(sup, 'policy_node',
                                {'policy_file': str(Path(args.policy).resolve())})
+            stack.start_sim()
+            stack.wait_connected()
             stack.go()
             ends = stack.run_episodes()
             stack.wait_recorded(ends)

@@ -5,12 +5,12 @@ service, run the episode in lockstep, record it, and compare with the offline ev
                               [--delta D] [--jobs J]
 
 1. The trainer node (``train_on_start``; policy ``DIR/policy.json``, checkpoints in
-   ``DIR/checkpoint``), the recorder, the simulator (lockstep, one episode, waiting silently
-   at its first state) and the policy node (no policy) start; the trainer reports on
-   ``/diagnostics`` and logs its progress.
-2. When the trainer's state is ``done`` and the graph joins every node, the launcher calls
-   the policy node's ``load_policy``, which fetches the best policy from the trainer's
-   ``get_policy``; then the simulator re-publishes its waiting state, the policy answers it
+   ``DIR/checkpoint``), the recorder and the policy node (no policy) start; the trainer
+   reports on ``/diagnostics`` and logs its progress.
+2. When the trainer's state is ``done``, the launcher calls the policy node's
+   ``load_policy``, which fetches the best policy from the trainer's ``get_policy``; then the
+   simulator starts (lockstep, one episode, its first state once the recorder is ready), and
+   when the graph joins every node it re-publishes its waiting state, the policy answers it
    and the episode runs in lockstep.
 3. After the episode's end event every node is stopped, the recorder finishes its bag,
    and the summary compares the ROS episode (return, delta*, steps) with the offline
@@ -88,7 +88,6 @@ def run_train_deploy(args: argparse.Namespace, sup: Supervisor) -> TrainDeployRe
                 'steps': args.steps, 'seed': args.seed, 'jobs': args.jobs,
                 'out': str(policy_file), 'checkpoint': str(out / 'checkpoint'),
                 'train_on_start': True})
-            stack.wait_connected()
             node = ros.node
 
             def trained() -> dict[str, str] | None:
@@ -107,6 +106,8 @@ def run_train_deploy(args: argparse.Namespace, sup: Supervisor) -> TrainDeployRe
             if not loaded.success:
                 raise LaunchError(f'policy node did not load the policy: {loaded.message}')
             sup.say(f'policy node: {loaded.message}')
+            stack.start_sim()
+            stack.wait_connected()
             stack.go()
             end = stack.run_episodes()[0]
             stack.wait_recorded([end])
