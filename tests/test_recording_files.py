@@ -109,6 +109,21 @@ def test_the_gap_check_names_what_a_bag_lacks(tmp_path):
     assert recording_gaps(rec, roles, ends[:1] * 3)[0] == '2 of 3 start events'
 
 
+def test_bag_reindex_command_reports_and_refuses_in_one_line(tmp_path, capsys):
+    """`sapga bag reindex`: what it did on stdout; a path that is no recording: one line,
+    exit 2."""
+    from sapga_ros.cli import main as cli
+
+    write_episodes(tmp_path / 'b', 1, 3).close()
+    assert cli.main(['bag', 'reindex', str(tmp_path / 'b')]) == 0
+    assert capsys.readouterr().out == (f'{tmp_path / "b"}: every storage file was complete; '
+                                       'wrote metadata.yaml; 5 messages\n')
+    for bad in (tmp_path / 'nope', tmp_path):
+        assert cli.main(['bag', 'reindex', str(bad)]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith('sapga bag: error: ') and err.count('\n') == 1 and str(bad) in err
+
+
 def test_a_bag_is_never_overwritten(tmp_path):
     """An existing directory is refused, as rosbag2 refuses it."""
     (tmp_path / 'b').mkdir()

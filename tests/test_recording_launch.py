@@ -107,6 +107,20 @@ def test_ten_lockstep_launches_record_every_message_exactly(tmp_path, policy_fil
             raise AssertionError(f'run {run}: {exc}\n{done.stdout[-3000:]}') from exc
 
 
+def test_a_launch_whose_bag_is_incomplete_exits_1():
+    """The swingup report fails (exit 1, the reason printed) when the bag lacks messages,
+    even though every episode equals the offline one."""
+    from sapga_ros.launch import Supervisor
+    from sapga_ros.launch.swingup import SwingupResult, print_swingup
+
+    end = {'event': 'goal', 'episode': 1, 'step': 3, 'return': -3.0, 'delta_star': 0.1}
+    offline = {'return': -3.0, 'delta_star': 0.1, 'steps': 3, 'reached': True}
+    whole = SwingupResult([end], [], offline, True)
+    lacking = SwingupResult([end], [], offline, True, 'the recording b is incomplete: ...')
+    assert print_swingup(Supervisor(), whole) == 0
+    assert print_swingup(Supervisor(), lacking) == 1
+
+
 @pytest.fixture
 def ros_context():
     domain = free_domain_id()
