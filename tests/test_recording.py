@@ -415,6 +415,13 @@ def start_recorder(out: Path, env: dict, *params: str) -> subprocess.Popen:
         return subprocess.Popen(cmd + args, env=env, stdout=log, stderr=subprocess.STDOUT)
 
 
+def wait_until(condition, what: str) -> None:
+    deadline = time.monotonic() + TIMEOUT
+    while not condition():
+        assert time.monotonic() < deadline, f'timed out waiting for {what}'
+        time.sleep(0.05)
+
+
 def read_count(bag: Path) -> int:
     try:
         return len(read_recording(bag).messages)
@@ -486,15 +493,9 @@ def test_a_topic_published_with_another_type_is_recorded_as_published(
     pub = node.create_publisher(Float32, 'command', DEPTH)
     bag = tmp_path / 'bag'
     try:
-        deadline = time.monotonic() + TIMEOUT
-        while pub.get_subscription_count() < 1:
-            assert time.monotonic() < deadline, 'the recorder never subscribed as Float32'
-            time.sleep(0.05)
+        wait_until(lambda: pub.get_subscription_count() >= 1, 'a Float32 subscription')
         pub.publish(Float32(data=1.5))
-        deadline = time.monotonic() + TIMEOUT
-        while read_count(bag) < 1:
-            assert time.monotonic() < deadline, 'the Float32 command was not recorded'
-            time.sleep(0.05)
+        wait_until(lambda: read_count(bag) == 1, 'the Float32 command on disk')
         proc.send_signal(signal.SIGINT)
         assert proc.wait(timeout=TIMEOUT) == 0
     finally:
