@@ -9,7 +9,7 @@ import pytest
 
 from sapga_ros.errors import CheckpointError, PolicyFileError
 from sapga_ros.exemplars.policy import ExemplarPolicy, policy_from_json
-from sapga_ros.recording.mcap_io import parse_event
+from sapga_ros.recording.events import parse_event
 from sapga_ros.optim.sapga import SapgaParams
 from sapga_ros.training.loop import TrainConfig, _pack, _unpack, train_sapga
 from sim_nodes.problem import load_problem

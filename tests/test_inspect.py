@@ -1,12 +1,13 @@
-"""Tests of ``sapga inspect`` (sapga_ros.recording.inspect) on synthetic recordings.
+"""Tests of ``sapga inspect`` (recording/inspect.py, cli/recordings.py) on synthetic bags.
 
-The recordings are written with the core writer (no ROS graph), so every number the summary
-should report is known in advance.
+The bags are written with the core writer (no ROS graph), so every number the summary should
+report is known in advance; ``sapga inspect`` takes the bag directory or one storage file.
 """
 from __future__ import annotations
 
 import json
 import math
+import os
 from pathlib import Path
 
 import pytest
@@ -14,9 +15,12 @@ from rclpy.serialization import serialize_message
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, Int32, String
 
-from sapga_ros.recording.inspect import inspect_main, run_inspect
-from sapga_ros.recording.mcap_io import (METADATA_NAME, ROLE_TYPES, ChannelInfo,
-                                         McapRecordingWriter, qos_profiles_yaml, read_recording)
+from sapga_ros.cli import main as cli
+from sapga_ros.cli.recordings import run_inspect
+from sapga_ros.recording.events import ROLE_TYPES
+from sapga_ros.recording.metadata import TopicInfo, qos_profile
+from sapga_ros.recording.reader import read_recording
+from sapga_ros.recording.writer import BagWriter
 from sim_nodes.goal import delta_of
 from sim_nodes.problem import load_problem
 
@@ -35,23 +39,30 @@ def pdip_states(n: int) -> list[list[float]]:
             for k in range(n)]
 
 
+def new_bag(path: Path, metadata: dict | None, chunk_size: int = 1024) -> BagWriter:
+    """A bag writer with the five role topics registered."""
+    writer = BagWriter(path, chunk_size=chunk_size, custom_data=metadata,
+                       file_metadata=metadata)
+    for role, topic in TOPICS.items():
+        writer.add_topic(TopicInfo(topic, ROLE_TYPES[role], [qos_profile()]))
+    return writer
+
+
 def write_recording(path_dir: Path, problem_name: str, episodes: list[dict], *,
                     chunk_size: int = 1024, metadata: bool = True) -> Path:
-    """A recording of the given episodes: dicts of states, commands, rewards, end."""
+    """A one-file bag of the given episodes (dicts of states, commands, rewards, end);
+    returns its storage file (the bag directory is its parent)."""
     problem = load_problem(problem_name)
-    info = {role: ChannelInfo(topic, ROLE_TYPES[role], qos_profiles_yaml([{}]))
-            for role, topic in TOPICS.items()}
-    meta = {METADATA_NAME: {'problem': problem_name, 'delta': '0.02',
-                            'topics': json.dumps(TOPICS)}} if metadata else {}
+    meta = {'problem': problem_name, 'delta': '0.02',
+            'topics': json.dumps(TOPICS)} if metadata else None
     t = [1_700_000_000_000_000_000]
     step = [0]
 
-    def put(writer: McapRecordingWriter, role: str, msg: object) -> None:
+    def put(writer: BagWriter, role: str, msg: object) -> None:
         t[0] += 1_000_000
-        writer.write(info[role], serialize_message(msg), t[0], t[0])
+        writer.write(TOPICS[role], serialize_message(msg), t[0], t[0])
 
-    with McapRecordingWriter.create(path_dir, problem_name, chunk_size=chunk_size,
-                                    metadata=meta) as writer:
+    with new_bag(path_dir / f'{problem_name}_bag', meta, chunk_size) as writer:
         for number, ep in enumerate(episodes):
             put(writer, 'event', String(data=json.dumps({'event': 'start', 'episode': number,
                                                          'step': 0, 'time': step[0] * 0.05})))
@@ -67,7 +78,7 @@ def write_recording(path_dir: Path, problem_name: str, episodes: list[dict], *,
                    'delta_star': min(delta_of(problem, s) for s in ep['states']),
                    'time': (step[0] - 1) * 0.05}
             put(writer, 'event', String(data=json.dumps(end)))
-        return writer.path
+    return writer.paths[0]
 
 
 def joint_state(problem, s: list[float], step: int) -> JointState:
@@ -97,18 +108,21 @@ def acrobot_file(tmp_path_factory) -> tuple[Path, list[dict]]:
 
 
 def inspect_json(capsys, path: Path, *args: str) -> tuple[int, dict, str]:
-    rc = inspect_main([str(path), '--json', *args])
+    rc = cli.main(['inspect', str(path), '--json', *args])
     out, err = capsys.readouterr()
     return rc, (json.loads(out) if out.strip() else {}), err
 
 
-def test_json_gives_back_the_known_episode_numbers(capsys, acrobot_file):
-    """--json reports each episode's return, steps, goal, delta* and action counts."""
+@pytest.mark.parametrize('whole_bag', [True, False])
+def test_json_gives_back_the_known_episode_numbers(capsys, acrobot_file, whole_bag):
+    """--json reports each episode's return, steps, goal, delta* and action counts, from the
+    bag directory or from its storage file alone."""
     path, eps = acrobot_file
-    rc, summary, err = inspect_json(capsys, path)
+    rc, summary, err = inspect_json(capsys, path.parent if whole_bag else path)
     assert rc == 0 and err == ''
     assert summary['complete'] and summary['error'] is None
     assert summary['profile'] == 'ros2' and summary['problem'] == 'acrobot'
+    assert summary['bag'] is whole_bag and len(summary['storage_files']) == 1
     assert summary['message_count'] == sum(2 + len(e['states']) + 3 * len(e['rewards'])
                                            for e in eps)
     counts = {t['topic']: t['count'] for t in summary['topics']}
@@ -135,8 +149,9 @@ def test_json_gives_back_the_known_episode_numbers(capsys, acrobot_file):
 def test_text_summary_names_topics_and_episodes(capsys, acrobot_file):
     """The text summary lists the topics and says which episode reached the goal."""
     path, _ = acrobot_file
-    assert run_inspect(str(path)) == 0
+    assert run_inspect(str(path.parent)) == 0
     out = capsys.readouterr().out
+    assert out.startswith(f'bag:       {path.parent} (rosbag2 bag, 1 storage file(s)')
     assert '/joint_states' in out and 'sensor_msgs/msg/JointState' in out
     assert 'not reached' in out and 'goal' in out
 
@@ -147,7 +162,7 @@ def test_plot_writes_a_png(capsys, tmp_path, problem_name):
     states = acrobot_states(30) if problem_name == 'acrobot' else pdip_states(30)
     path = write_recording(tmp_path, problem_name, [episode(states, 'step_limit')])
     png = tmp_path / 'episode.png'
-    rc, summary, err = inspect_json(capsys, path, '--plot', str(png))
+    rc, summary, err = inspect_json(capsys, path.parent, '--plot', str(png))
     assert rc == 0, err
     data = png.read_bytes()
     assert data.startswith(b'\x89PNG\r\n\x1a\n') and len(data) > 10_000
@@ -174,21 +189,29 @@ def test_truncated_file_gives_a_partial_summary(capsys, tmp_path, acrobot_file):
     (b'\x89MCAP0\r\n\x01\x10', 'truncated'),
 ])
 def test_unreadable_file_gives_a_one_line_error(capsys, tmp_path, content, what):
-    """Files that hold no readable MCAP give exit status 1 and one line naming the file."""
+    """Files that hold no readable MCAP give exit status 2 and one line naming the file."""
     bad = tmp_path / 'bad.mcap'
     bad.write_bytes(content)
     rc = run_inspect(str(bad), json_out=True)
     out, err = capsys.readouterr()
-    assert rc == 1 and out == ''
-    assert err.count('\n') == 1 and err.startswith('error: ') and str(bad) in err
+    assert rc == 2 and out == ''
+    assert err.count('\n') == 1 and err.startswith('sapga inspect: error: ') and str(bad) in err
     assert what in err
 
 
-def test_missing_file_gives_a_one_line_error(capsys, tmp_path):
-    """A path that does not exist is named in a one-line error."""
-    assert run_inspect(str(tmp_path / 'nope.mcap')) == 1
+@pytest.mark.parametrize('make, what', [
+    (lambda p: None, 'no such file'),
+    (lambda p: p.mkdir(), 'neither metadata.yaml nor .mcap files'),
+    (lambda p: os.mkfifo(p), 'a FIFO, not a regular file'),
+])
+def test_missing_or_odd_paths_give_a_one_line_error(capsys, tmp_path, make, what):
+    """A missing path, an empty directory or a FIFO is named in a one-line error, exit 2
+    (a FIFO would otherwise block the reader until some writer appears)."""
+    path = tmp_path / 'odd.mcap'
+    make(path)
+    assert cli.main(['inspect', str(path)]) == 2
     err = capsys.readouterr().err
-    assert err.count('\n') == 1 and 'nope.mcap: no such file' in err
+    assert err.count('\n') == 1 and str(path) in err and what in err, err
 
 
 def test_corrupt_chunk_never_gives_a_traceback(capsys, tmp_path, acrobot_file):
@@ -201,7 +224,7 @@ def test_corrupt_chunk_never_gives_a_traceback(capsys, tmp_path, acrobot_file):
     bad.write_bytes(bytes(data))
     rc = run_inspect(str(bad), json_out=True)
     out, err = capsys.readouterr()
-    assert rc in (0, 1) and 'Traceback' not in err and err.count('\n') == 1
+    assert rc in (0, 2) and 'Traceback' not in err and err.count('\n') == 1
     if rc == 0:
         summary = json.loads(out)
         assert summary['complete'] is False and summary['error']
@@ -211,7 +234,7 @@ def test_problem_comes_from_frame_id_without_metadata(capsys, tmp_path):
     """Without the sapga metadata the problem is found from the JointState frame_id."""
     path = write_recording(tmp_path, 'pdip', [episode(pdip_states(10), 'step_limit')],
                            metadata=False)
-    rc, summary, _ = inspect_json(capsys, path)
+    rc, summary, _ = inspect_json(capsys, path.parent)
     assert rc == 0 and summary['problem'] == 'pdip'
     assert summary['episodes'][0]['steps'] == 9
     assert summary['episodes'][0]['delta_star_from_states'] is not None
@@ -221,8 +244,6 @@ def test_states_go_to_their_episode_by_sim_time(capsys, tmp_path):
     """A final state heard after its end event, or a first state before its start event,
     still counts in its own episode (events carry the sim time of their state)."""
     problem = load_problem('acrobot')
-    info = {role: ChannelInfo(topic, ROLE_TYPES[role], qos_profiles_yaml([{}]))
-            for role, topic in TOPICS.items()}
     states = acrobot_states(5)
     order = [('event', {'event': 'start', 'episode': 1, 'time': 0.0}),
              ('state', 0), ('state', 1), ('state', 2), ('state', 3),
@@ -233,12 +254,12 @@ def test_states_go_to_their_episode_by_sim_time(capsys, tmp_path):
              ('event', {'event': 'start', 'episode': 2, 'time': 0.25}),
              ('state', 6),
              ('event', {'event': 'step_limit', 'episode': 2, 'step': 1, 'time': 0.3})]
-    with McapRecordingWriter.create(tmp_path, 'acrobot', metadata={METADATA_NAME: {
-            'problem': 'acrobot', 'topics': json.dumps(TOPICS)}}) as writer:
+    with new_bag(tmp_path / 'bag', {'problem': 'acrobot', 'topics': json.dumps(TOPICS)}
+                 ) as writer:
         for t, (role, item) in enumerate(order, start=1):
             msg = (String(data=json.dumps(item)) if role == 'event'
                    else joint_state(problem, states[min(item, 4)], item))
-            writer.write(info[role], serialize_message(msg), t, t)
+            writer.write(TOPICS[role], serialize_message(msg), t, t)
     rc, summary, _ = inspect_json(capsys, writer.path)
     first, second = summary['episodes']
     assert rc == 0 and first['episode'] == 1 and second['episode'] == 2
@@ -248,7 +269,7 @@ def test_states_go_to_their_episode_by_sim_time(capsys, tmp_path):
 
 def test_every_truncation_point_gives_a_summary_or_one_line_error(capsys, tmp_path,
                                                                   acrobot_file):
-    """Cut anywhere, a recording gives exit 0 with a partial summary or 1 with one line."""
+    """Cut anywhere, a recording gives exit 0 with a partial summary or 2 with one line."""
     path, _ = acrobot_file
     data = path.read_bytes()
     cut = tmp_path / 'cut.mcap'
@@ -257,7 +278,7 @@ def test_every_truncation_point_gives_a_summary_or_one_line_error(capsys, tmp_pa
         cut.write_bytes(data[:n])
         rc = run_inspect(str(cut), json_out=True)
         out, err = capsys.readouterr()
-        assert rc in (0, 1) and err.count('\n') == 1 and str(cut) in err, (n, err)
+        assert rc in (0, 2) and err.count('\n') == 1 and str(cut) in err, (n, err)
         if rc == 0:
             counts.append(json.loads(out)['message_count'])
     assert counts == sorted(counts) and counts[-1] > 0      # more bytes, never fewer messages

@@ -131,9 +131,16 @@ def launch(args: list[str], tmp_path: Path) -> subprocess.CompletedProcess:
     return done
 
 
-def recorded_episodes(path: Path) -> tuple[list[dict], list[float]]:
-    """The episode end events and the rewards of an MCAP file, read with the mcap library."""
+def the_bag(directory: Path) -> Path:
+    """The one bag directory a launch wrote into ``directory``."""
+    (bag,) = [p for p in directory.iterdir() if (p / 'metadata.yaml').is_file()]
+    return bag
+
+
+def recorded_episodes(bag: Path) -> tuple[list[dict], list[float]]:
+    """The episode end events and the rewards of a bag, read with the mcap library."""
     ends, rewards = [], []
+    (path,) = bag.glob('*.mcap')
     with open(path, 'rb') as f:
         reader = make_reader(f, decoder_factories=[DecoderFactory()])
         assert reader.get_header().profile == 'ros2'
@@ -153,7 +160,7 @@ def sapga_eval_json(path: Path, capsys) -> dict:
 
 
 def test_swingup_lockstep_recording_equals_sapga_eval(tmp_path, capsys):
-    """Each lockstep episode of the swingup launch, as recorded in MCAP, equals sapga eval."""
+    """Each lockstep episode of the swingup launch, as recorded in the bag, equals sapga eval."""
     problem = load_problem('acrobot')
     rng = np.random.default_rng(11)
     policy = ExemplarPolicy(problem, rng.uniform(problem.low, problem.high, (60, 4)),
@@ -163,7 +170,7 @@ def test_swingup_lockstep_recording_equals_sapga_eval(tmp_path, capsys):
                   tmp_path)
     assert '[sim] ' in done.stdout and '[recorder] ' in done.stdout
     assert 'every lockstep episode is equal' in done.stdout
-    (recording,) = (tmp_path / 'rec').glob('*.mcap')
+    recording = the_bag(tmp_path / 'rec')
     ends, rewards = recorded_episodes(recording)
     expected = sapga_eval_json(tmp_path / 'small.json', capsys)   # delta from meta: 0.3
     assert len(ends) == 2
@@ -180,7 +187,7 @@ def test_train_deploy_serves_records_and_equals_the_offline_evaluation(tmp_path,
                    '--jobs', '1'], tmp_path)
     assert '[trainer] ' in done.stdout and '[policy] ' in done.stdout
     assert 'ROS episode == offline evaluation: yes' in done.stdout
-    (recording,) = (tmp_path / 'td').glob('*.mcap')
+    recording = the_bag(tmp_path / 'td')
     (end,), _ = recorded_episodes(recording)
     expected = sapga_eval_json(tmp_path / 'td' / 'policy.json', capsys)
     assert (end['return'], end['step']) == (expected['return'], expected['steps'])

@@ -49,7 +49,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the demo; the exit status."""
-    from sapga_ros.recording.inspect import run_inspect
+    from sapga_ros.cli.recordings import run_inspect
 
     args = build_parser().parse_args(argv)
     out = Path(args.out)
@@ -68,7 +68,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     sup.say('\n'.join(summary_lines(result)), 'demo')
     print(flush=True)
     if not result.recordings:
-        sup.say('error: the recorder wrote no file', 'demo')
+        sup.say('error: the recorder wrote no bag', 'demo')
         return 1
     recording = result.recordings[-1]
     plot = out / 'episode.png'
@@ -80,6 +80,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         problems.append(f'sapga inspect failed on {recording}')
     if not result.equal:
         problems.append('the ROS episode differs from the offline evaluation')
+    if result.recording_error:
+        problems.append(result.recording_error)
     if not result.episode['reached']:
         problems.append(f'the policy did not reach S_delta (delta* '
                         f'{result.episode["delta_star"]:.4f} > {args.delta}); try more '

@@ -5,7 +5,8 @@
     sapga eval POLICY [--delta D] [--max-steps N] [--json]
     sapga exemplars POLICY [--json] [--plot OUT.png] [--prune-unused OUT.json]
     sapga bench [--json] [--ros [--problem P]]
-    sapga inspect FILE.mcap [--json] [--plot OUT.png]
+    sapga inspect BAG [--json] [--plot OUT.png] [--episode N]
+    sapga bag reindex BAG
     sapga experiment [table2] --out DIR [--only 2,4] [--seeds N] [--scale F]
     sapga launch NAME ...
 
@@ -23,6 +24,8 @@ import sys
 import time
 from pathlib import Path
 
+from sapga_ros.cli.recordings import (add_bag_arguments, add_inspect_arguments, cmd_bag,
+                                      cmd_inspect)
 from sapga_ros.errors import SapgaError
 
 EXIT_USAGE = 2
@@ -106,10 +109,9 @@ def build_parser() -> argparse.ArgumentParser:
                         'selection time (sapga_ros.bench.ros)')
     b.add_argument('--problem', default='acrobot', help='with --ros: the problem')
 
-    i = sub.add_parser('inspect', help='summarise (and plot) an MCAP recording')
-    i.add_argument('file')
-    i.add_argument('--json', action='store_true')
-    i.add_argument('--plot', metavar='OUT.png')
+    add_inspect_arguments(sub.add_parser(
+        'inspect', help='summarise (and plot) a recording: a bag directory or an MCAP file'))
+    add_bag_arguments(sub.add_parser('bag', help='recording maintenance: bag reindex BAG'))
 
     ex = sub.add_parser('experiment', help='run the paper\'s experiments (Table 2)')
     ex.add_argument('name', nargs='?', default='table2',
@@ -304,11 +306,6 @@ def cmd_bench(args) -> int:
     return 0
 
 
-def cmd_inspect(args) -> int:
-    from sapga_ros.recording.inspect import run_inspect
-    return run_inspect(args.file, json_out=args.json, plot=args.plot)
-
-
 def cmd_experiment(args) -> int:
     from sapga_ros.training.experiments import run_experiments
     only = None
@@ -327,7 +324,7 @@ def cmd_launch(args) -> int:
 
 
 COMMANDS = {'train': cmd_train, 'eval': cmd_eval, 'exemplars': cmd_exemplars,
-            'bench': cmd_bench, 'inspect': cmd_inspect, 'launch': cmd_launch,
+            'bench': cmd_bench, 'inspect': cmd_inspect, 'bag': cmd_bag, 'launch': cmd_launch,
             'experiment': cmd_experiment}
 
 

@@ -1,4 +1,4 @@
-"""``sapga launch swingup``: simulator + policy node + MCAP recorder for N episodes.
+"""``sapga launch swingup``: simulator + policy node + rosbag2 recorder for N episodes.
 
     sapga launch swingup --policy FILE --out DIR [--mode lockstep|realtime] [--episodes N]
                          [--problem P] [--delta D] [--real-time-factor F]
@@ -7,27 +7,29 @@ The problem is the policy file's; delta is ``--delta``, else the policy's traini
 (``meta.delta``), else the problem's default.  The order makes the recording whole and a
 lockstep episode exact:
 
-1. the recorder, the simulator (lockstep, silent: it waits at the first state without
-   re-publishing it) and the policy node without a policy start;
-2. the launcher waits until the ROS graph joins them all (every topic has its publisher
-   and subscribers), then a settling moment;
-3. the policy file goes to the policy node (its ``policy_file`` parameter);
+1. the recorder and the policy node start; the policy file goes to the policy node (its
+   ``policy_file`` parameter);
+2. the simulator starts (lockstep, silent: it waits for the recorder before its first
+   episode starts, then at the first state without re-publishing it);
+3. the launcher waits until the ROS graph joins them all (every topic has its publisher
+   and subscribers) and the recorder's ``ready`` service says it hears every publisher of
+   every recorded topic, then a settling moment;
 4. the simulator is let go: in lockstep it re-publishes the waiting state, the policy
    answers it and the episodes run step by step; in realtime mode it switches to realtime
    (``mode``, ``real_time_factor``) and holds command 0 until the policy's first answer, as
    any realtime start does.  ``max_episodes`` = N stops the simulator after N episodes;
-5. after the N-th episode end event, and once the recording on disk holds every message of
-   the episodes (a busy recorder lags behind a lockstep episode), the nodes are stopped
-   (Ctrl-C), the recorder finishes its file, and a summary is printed: per episode end,
-   steps, return and delta*, the recording, and in lockstep the offline evaluation of the
-   same file (``sapga eval``), which must be equal.
+5. after the N-th episode end event, and once the bag on disk holds every message of the
+   episodes (a busy recorder lags behind a lockstep episode), the nodes are stopped
+   (Ctrl-C), the recorder finishes its bag, and a summary is printed: per episode end,
+   steps, return and delta*, the bag, and in lockstep the offline evaluation of the same
+   file (``sapga eval``), which must be equal.  The launch fails (exit 1) when an episode
+   differs or the finished bag lacks a message of the episodes (``recording/verify.py``).
 
 ``DeployStack`` and ``LaunchRos`` are shared with ``train_deploy``.
 """
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 import tempfile
@@ -49,9 +51,13 @@ from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
 from sapga_ros.errors import SapgaError
+from sapga_ros.recording.events import parse_event
+from sapga_ros.recording.reader import read_recording
+from sapga_ros.recording.session import free_bag_path, utc_stamp
+from sapga_ros.recording.verify import recording_gaps
 from sapga_ros.launch import (LaunchError, Supervisor, find_executable, launch_main,
                               write_params_file)
-from sim_nodes.ros.common import EVENT_QOS, qos_profile, stamp_ns, topic_names
+from sim_nodes.ros.common import EVENT_QOS, qos_profile, spin_guarded, stamp_ns, topic_names
 from sim_nodes.problem import Problem, load_problem
 
 MODES = ('lockstep', 'realtime')
@@ -84,11 +90,8 @@ class LaunchNode(Node):
         self.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics, 10)
 
     def _on_event(self, msg: String) -> None:
-        try:
-            event = json.loads(msg.data)
-        except ValueError:
-            return
-        if isinstance(event, dict):
+        event = parse_event(msg.data)       # bounded: hostile text is no event
+        if event is not None:
             with self._lock:
                 self.events.append(event)
 
@@ -137,7 +140,7 @@ class LaunchRos:
 
     def _spin(self) -> None:
         try:
-            self.executor.spin()
+            spin_guarded(self.executor, self.node.get_logger())
         except Exception:  # noqa: BLE001 - shutdown while spinning
             pass
 
@@ -201,21 +204,32 @@ class DeployStack:
     ros: LaunchRos
     opts: StackOptions
     params_dir: Path
-    recordings_before: set[Path] = field(default_factory=set)
+    bag: Path | None = None             # the recording: a rosbag2 bag directory
+    topics: dict[str, str] = field(default_factory=dict)   # role -> resolved topic name
 
     def start(self) -> None:
-        """Start the recorder, the simulator (lockstep, silent) and the policy node."""
+        """Start the recorder and the policy node (the simulator comes once the policy node
+        has its policy: ``start_sim``)."""
         o = self.opts
         o.out.mkdir(parents=True, exist_ok=True)
-        self.recordings_before = set(o.out.glob('*.mcap'))
+        self.bag = free_bag_path(o.out, f'{o.problem.name}_{utc_stamp()}')
+        self.topics = {role: self.ros.node.resolve_topic_name(name)
+                       for role, name in self.ros.node.topics.items()}
         self.spawn('recorder', 'recorder_node', {'problem': o.problem.name,
                                                  'output_dir': str(o.out),
+                                                 'bag': self.bag.name,
                                                  'delta': float(o.delta)})
+        self.spawn('policy', 'policy_node', {'problem': o.problem.name})
+
+    def start_sim(self) -> None:
+        """Start the simulator: lockstep, silent, its first episode once the recorder is
+        ready (``wait_for_recorder``)."""
+        o = self.opts
         self.spawn('sim', sim_executable(o.problem), {
             'problem': o.problem.name, 'mode': 'lockstep', 'delta': float(o.delta),
             'auto_reset': True, 'max_episodes': o.episodes, 'republish_period': 0.0,
-            'real_time_factor': float(o.real_time_factor)})
-        self.spawn('policy', 'policy_node', {'problem': o.problem.name})
+            'real_time_factor': float(o.real_time_factor), 'wait_for_recorder': 'recorder',
+            'recorder_timeout': CONNECT_TIMEOUT_S})
 
     def spawn(self, name: str, exe: str, params: dict[str, Any]) -> None:
         """Start package executable ``exe`` as child ``name`` with ``params``."""
@@ -237,9 +251,28 @@ class DeployStack:
                 raise LaunchError(f'{exc}; missing: {"; ".join(node.missing_links(needs))}'
                                   ) from exc
             raise
+        self.wait_recorder_ready()
         time.sleep(SETTLE_S)
         self.sup.check()
         self.sup.say('all nodes connected')
+
+    def wait_recorder_ready(self) -> None:
+        """Wait until the recorder hears every publisher of every recorded topic."""
+        said = ['no answer']
+
+        def ready() -> bool:
+            answer = self.ros.trigger(self.sup, '/recorder/ready')
+            said[0] = answer.message
+            return answer.success
+
+        try:
+            self.sup.wait(ready, timeout=CONNECT_TIMEOUT_S, what='the recorder')
+        except LaunchError as exc:
+            if 'timed out' in str(exc):
+                raise LaunchError(f'the recorder is not ready after {CONNECT_TIMEOUT_S:g} s: '
+                                  f'{said[0]}') from exc
+            raise
+        self.sup.say(f'recorder ready: {said[0]}')
 
     def go(self) -> None:
         """Let the simulator go (once the policy node has its policy): lockstep re-publishes
@@ -266,46 +299,38 @@ class DeployStack:
 
         return self.sup.wait(finished, what=f'{n} episodes')
 
-    def wait_recorded(self, ends: list[dict]) -> None:
-        """Wait until the recording holds every episode's messages, so that stopping the
-        recorder loses none (a busy recorder can lag behind a lockstep episode).
-
-        Counts on disk (the recorder closes a chunk every second): a reward per step, a
-        state per step plus each initial state, a start and an end event per episode.  After
-        ``RECORDED_S`` the launch goes on, saying what the recording lacks.
-        """
-        from sapga_ros.recording.mcap_io import read_recording
-        t = self.ros.node.topics
-        steps = sum(int(e.get('step') or 0) for e in ends)
-        want = {t['reward']: steps, t['state']: steps + len(ends), t['event']: 2 * len(ends)}
-        have: dict[str, int] = {}
-
-        def recorded() -> bool:
-            have.clear()
-            for path in self.recordings():
-                try:
-                    rec = read_recording(path)
-                except SapgaError:
-                    continue            # not even a header on disk yet
-                for cid, count in rec.topic_counts().items():
-                    topic = rec.channels[cid].topic.lstrip('/')
-                    have[topic] = have.get(topic, 0) + count
-            return all(have.get(k.lstrip('/'), 0) >= v for k, v in want.items())
-
+    def recording_gaps(self, ends: list[dict]) -> list[str]:
+        """What the bag lacks of the episodes that ended with ``ends`` ([]: whole)."""
         try:
-            self.sup.wait(recorded, timeout=RECORDED_S, what='the recording')
+            rec = read_recording(self.bag)
+        except SapgaError as exc:
+            return [str(exc)]
+        return recording_gaps(rec, self.topics, ends, lockstep=self.opts.mode == 'lockstep')
+
+    def wait_recorded(self, ends: list[dict]) -> None:
+        """Wait until the bag on disk holds every message of the episodes, so that stopping
+        the recorder loses none (a busy recorder can lag behind a lockstep episode; it
+        closes a chunk every second).  After ``RECORDED_S`` the launch goes on; the bag is
+        checked again once finished (``check_recording``)."""
+        try:
+            self.sup.wait(lambda: not self.recording_gaps(ends), timeout=RECORDED_S,
+                          what='the recording')
         except LaunchError as exc:
             if 'timed out' not in str(exc):
                 raise
-            lacks = ', '.join(f'{have.get(k.lstrip("/"), 0)} of {v} {k} messages'
-                              for k, v in want.items())
-            self.sup.say(f'warning: the recording is incomplete after {RECORDED_S:g} s '
-                         f'({lacks}): the recorder lost messages')
+
+    def check_recording(self, ends: list[dict]) -> str | None:
+        """After the nodes stopped: why the finished bag is not whole, or None."""
+        gaps = self.recording_gaps(ends)
+        if not gaps:
+            rec = read_recording(self.bag)
+            if not rec.complete:
+                gaps = [rec.error or 'not finished']
+        return f'the recording {self.bag} is incomplete: {"; ".join(gaps)}' if gaps else None
 
     def recordings(self) -> list[Path]:
-        """MCAP files written by this run's recorder."""
-        new = set(self.opts.out.glob('*.mcap')) - self.recordings_before
-        return sorted(new, key=lambda p: p.stat().st_mtime)
+        """The bag written by this run's recorder (none if it wrote nothing)."""
+        return [self.bag] if self.bag is not None and self.bag.is_dir() else []
 
 
 def offline_episode(policy: Any, delta: float) -> dict:
@@ -345,6 +370,7 @@ class SwingupResult:
     recordings: list[Path]
     offline: dict | None            # lockstep: the offline evaluation of the policy file
     equal: bool | None              # lockstep: every episode equals it
+    recording_error: str | None = None  # why the bag is not whole, if it is not
 
 
 def positive_int(text: str) -> int:
@@ -417,9 +443,10 @@ def run_swingup(args: argparse.Namespace, sup: Supervisor) -> SwingupResult:
         with tempfile.TemporaryDirectory(prefix='sapga-launch-') as tmp:
             stack = DeployStack(sup, ros, opts, Path(tmp))
             stack.start()
-            stack.wait_connected()
             ros.set_parameters(sup, 'policy_node',
                                {'policy_file': str(Path(args.policy).resolve())})
+            stack.start_sim()
+            stack.wait_connected()
             stack.go()
             ends = stack.run_episodes()
             stack.wait_recorded(ends)
@@ -430,7 +457,7 @@ def run_swingup(args: argparse.Namespace, sup: Supervisor) -> SwingupResult:
     if opts.mode == 'lockstep':
         offline = offline_episode(policy, opts.delta)
         equal = all(same_episode(event_summary(e), offline) for e in ends)
-    return SwingupResult(ends, stack.recordings(), offline, equal)
+    return SwingupResult(ends, stack.recordings(), offline, equal, stack.check_recording(ends))
 
 
 def print_swingup(sup: Supervisor, result: SwingupResult) -> int:
@@ -446,8 +473,10 @@ def print_swingup(sup: Supervisor, result: SwingupResult) -> int:
                      f'{o["delta_star"]:.5f}, steps {o["steps"]}: '
                      + ('every lockstep episode is equal' if result.equal
                         else 'DIFFERENT from the lockstep episodes'))
+    if result.recording_error:
+        lines.append(f'error: {result.recording_error}')
     sup.say('\n'.join(lines))
-    return 0 if result.equal in (None, True) else 1
+    return 0 if result.equal in (None, True) and not result.recording_error else 1
 
 
 def main(argv: Sequence[str] | None = None) -> int:

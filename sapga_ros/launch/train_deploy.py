@@ -5,14 +5,14 @@ service, run the episode in lockstep, record it, and compare with the offline ev
                               [--delta D] [--jobs J]
 
 1. The trainer node (``train_on_start``; policy ``DIR/policy.json``, checkpoints in
-   ``DIR/checkpoint``), the recorder, the simulator (lockstep, one episode, waiting silently
-   at its first state) and the policy node (no policy) start; the trainer reports on
-   ``/diagnostics`` and logs its progress.
-2. When the trainer's state is ``done`` and the graph joins every node, the launcher calls
-   the policy node's ``load_policy``, which fetches the best policy from the trainer's
-   ``get_policy``; then the simulator re-publishes its waiting state, the policy answers it
+   ``DIR/checkpoint``), the recorder and the policy node (no policy) start; the trainer
+   reports on ``/diagnostics`` and logs its progress.
+2. When the trainer's state is ``done``, the launcher calls the policy node's
+   ``load_policy``, which fetches the best policy from the trainer's ``get_policy``; then the
+   simulator starts (lockstep, one episode, its first state once the recorder is ready), and
+   when the graph joins every node it re-publishes its waiting state, the policy answers it
    and the episode runs in lockstep.
-3. After the episode's end event every node is stopped, the recorder finishes its MCAP file,
+3. After the episode's end event every node is stopped, the recorder finishes its bag,
    and the summary compares the ROS episode (return, delta*, steps) with the offline
    evaluation of the policy the trainer served: in lockstep they are equal, exactly.
 """
@@ -45,6 +45,7 @@ class TrainDeployResult:
     equal: bool
     recordings: list[Path]
     end_event: dict
+    recording_error: str | None = None  # why the bag is not whole, if it is not
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -87,7 +88,6 @@ def run_train_deploy(args: argparse.Namespace, sup: Supervisor) -> TrainDeployRe
                 'steps': args.steps, 'seed': args.seed, 'jobs': args.jobs,
                 'out': str(policy_file), 'checkpoint': str(out / 'checkpoint'),
                 'train_on_start': True})
-            stack.wait_connected()
             node = ros.node
 
             def trained() -> dict[str, str] | None:
@@ -106,6 +106,8 @@ def run_train_deploy(args: argparse.Namespace, sup: Supervisor) -> TrainDeployRe
             if not loaded.success:
                 raise LaunchError(f'policy node did not load the policy: {loaded.message}')
             sup.say(f'policy node: {loaded.message}')
+            stack.start_sim()
+            stack.wait_connected()
             stack.go()
             end = stack.run_episodes()[0]
             stack.wait_recorded([end])
@@ -115,7 +117,8 @@ def run_train_deploy(args: argparse.Namespace, sup: Supervisor) -> TrainDeployRe
     offline = offline_episode(policy, delta)
     episode = event_summary(end)
     return TrainDeployResult(policy_file, trainer, episode, offline,
-                             same_episode(episode, offline), stack.recordings(), end)
+                             same_episode(episode, offline), stack.recordings(), end,
+                             stack.check_recording([end]))
 
 
 def summary_lines(result: TrainDeployResult) -> list[str]:
@@ -132,13 +135,15 @@ def summary_lines(result: TrainDeployResult) -> list[str]:
                     f'NO: ROS {e} vs offline {o}'))
     lines += [f'recording: {p}' for p in result.recordings] or [
         "recording: none written (see the recorder's output)"]
+    if result.recording_error:
+        lines.append(f'error: {result.recording_error}')
     return lines
 
 
 def report(sup: Supervisor, result: TrainDeployResult) -> int:
-    """Print the summary; 0 if the ROS episode equals the offline one, else 1."""
+    """Print the summary; 0 if the ROS episode equals the offline one and the bag is whole."""
     sup.say('\n'.join(summary_lines(result)))
-    return 0 if result.equal else 1
+    return 0 if result.equal and not result.recording_error else 1
 
 
 def main(argv: Sequence[str] | None = None) -> int:

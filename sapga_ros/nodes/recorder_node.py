@@ -1,11 +1,16 @@
-"""Recorder node (SPEC 4): subscribes to a problem's topics and writes them to MCAP.
+"""Recorder node (SPEC 4): subscribes to a problem's topics and writes one rosbag2 bag.
 
-A thin shell around ``sapga_ros.recording.mcap_io``:
-every subscription is raw (the CDR bytes as they
-arrived), and each message goes unchanged to the core writer with its receive time
-(``log_time``) and publish time (``header.stamp`` if the type has one, else the publisher's
-source timestamp).  Files are MCAP profile ``ros2`` with full ``ros2msg`` definitions, so
-Foxglove, ``ros2 bag info`` and ``sapga inspect`` read them.
+A thin shell around ``sapga_ros.recording``: every subscription is raw (the CDR bytes as they
+arrived) with the publishers' QoS, durability included (``recorder_qos.py``), and each message
+goes unchanged to the bag with its receive time (``log_time``) and publish time
+(``header.stamp`` if the type has one, else the publisher's source timestamp).  The bag is a
+directory ``<output_dir>/<bag>/`` of ``metadata.yaml`` and MCAP storage files, as rosbag2's
+MCAP storage plugin writes them, so ``ros2 bag info/play``, Foxglove, rosbags and
+``sapga inspect`` read it.
+
+Service ``~/ready`` (``std_srvs/Trigger``): success once every recorded topic has a publisher
+and each of its publishers is matched; ``message`` names what is missing.  A simulator with
+``wait_for_recorder`` (and ``sapga launch``) starts the run only then, so nothing is lost.
 
 Parameters (all read-only; msg_configs/params/recorder_node.yaml lists them):
 
@@ -13,26 +18,26 @@ Parameters (all read-only; msg_configs/params/recorder_node.yaml lists them):
 name            default     meaning
 ==============  ==========  =================================================================
 problem         acrobot     msg_configs/<problem>.yaml: topic names, QoS, state layout
-output_dir      recordings  directory of the .mcap files (created if missing)
+output_dir      recordings  directory the bag directory is made in (created if missing)
+bag             ''          the bag directory's name; '' = ``<problem>_<UTC time>``.  An
+                            existing directory is never overwritten
 topics          (problem)   topics to record; default: the problem's state, command, reward,
                             episode_event and exemplar_index topics.  An entry is a name
                             (type from the problem, else found on the graph once a publisher
                             appears) or ``name:pkg/msg/Type`` (quote it inside ``-p`` lists:
                             ``-p 'topics:=["odom:nav_msgs/msg/Odometry"]'``)
-split           run         ``run`` (default): one file per recorder run, episode events
-                            inside: one timeline, nothing falls between files; ``episode``:
-                            a new file at each episode ``start`` event
-chunk_size      65536       [bytes] uncompressed MCAP chunk: the most a SIGKILL can lose
-flush_period    1.0         [s] close the chunk in progress at least this often (0: by size)
-compression     zstd        ``zstd``, ``lz4`` or ``none``
+split           run         ``run``: one storage file; ``episode``: a new storage file of
+                            the same bag at each episode ``start`` event (as rosbag2 splits)
+chunk_size      65536       [bytes] uncompressed MCAP chunk
+flush_period    1.0         [s] close the chunk in progress at least this often (0: by size);
+                            the most a SIGKILL of the recorder can lose
+compression     zstd        ``zstd``, ``lz4`` or ``none`` (MCAP chunk compression)
 queue_depth     1000        subscription history depth (keep_last)
-delta           0.0         goal delta written to the file metadata (0: the problem default)
+delta           0.0         goal delta written to the bag metadata (0: the problem default)
 ==============  ==========  =================================================================
 
-Files are named ``<problem>_<UTC time>.mcap`` (``..._ep<NNNN>.mcap`` per episode), opened at
-the first message, never overwritten.  Ctrl-C, SIGTERM and a shutdown of the ROS context
-finish the file (summary and footer); after a SIGKILL the file is readable up to its last
-complete chunk, and every episode end event closes the chunk in progress.
+Ctrl-C, SIGTERM and a shutdown of the ROS context finish the bag (summary, footer,
+``metadata.yaml``); after a SIGKILL, ``sapga bag reindex DIR`` completes it.
 """
 from __future__ import annotations
 
@@ -47,27 +52,27 @@ from typing import Any
 
 import rclpy
 from rcl_interfaces.msg import ParameterDescriptor
-from rclpy.executors import ExternalShutdownException
+from rclpy.exceptions import ParameterException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import QoSProfile
 from rclpy.signals import SignalHandlerOptions
+from std_srvs.srv import Trigger
 
 from sapga_ros.errors import SapgaError
-from sapga_ros.recording.mcap_io import (COMPRESSIONS, DEFAULT_CHUNK_SIZE, DEFAULT_ROLE_TOPICS,
-                                         ROLE_TYPES, SPLITS, ChannelInfo, RecordingSession,
-                                         full_type_name, message_definition, publish_time_ns,
-                                         qos_profiles_yaml, utc_stamp)
+from sapga_ros.nodes.recorder_qos import (adapt_to_offers, describe, incompatible,
+                                          offered_profile, role_qos)
+from sapga_ros.recording.events import ROLE_TYPES
+from sapga_ros.recording.metadata import TopicInfo
+from sapga_ros.recording.schemas import (full_type_name, message_definition, publish_time_ns,
+                                         type_hash)
+from sapga_ros.recording.session import RecordingSession, free_bag_path, utc_stamp
+from sapga_ros.recording.writer import DEFAULT_CHUNK_SIZE
 from sim_nodes.problem import load_problem
+from sim_nodes.ros.common import THROTTLE_S, spin_guarded, topic_names
 
-_RELIABILITY = {'reliable': ReliabilityPolicy.RELIABLE,
-                'best_effort': ReliabilityPolicy.BEST_EFFORT}
-_DURABILITY = {'volatile': DurabilityPolicy.VOLATILE,
-               'transient_local': DurabilityPolicy.TRANSIENT_LOCAL}
-
-
-def _ro(description: str) -> ParameterDescriptor:
-    return ParameterDescriptor(description=description, read_only=True)
+GRAPH_PERIOD_S = 1.0        # [s] between looks at the graph (new publishers, their QoS)
 
 
 def message_class(type_name: str) -> Any:
@@ -79,77 +84,78 @@ def message_class(type_name: str) -> Any:
         raise SapgaError(f'message type {type_name!r} is not installed') from exc
 
 
-def profile_dict(qos: QoSProfile) -> dict[str, Any]:
-    """An rclpy QoS profile as qos_profiles_yaml takes it."""
-    return {
-        'history': qos.history.name.lower(), 'depth': qos.depth,
-        'reliability': qos.reliability.name.lower(),
-        'durability': qos.durability.name.lower(),
-        'deadline': qos.deadline.nanoseconds, 'lifespan': qos.lifespan.nanoseconds,
-        'liveliness': qos.liveliness.name.lower(),
-        'liveliness_lease_duration': qos.liveliness_lease_duration.nanoseconds,
-        'avoid_ros_namespace_conventions': qos.avoid_ros_namespace_conventions,
-    }
-
-
 class RecorderNode(Node):
-    """Raw subscriptions → ``RecordingSession`` (one MCAP file per run or per episode)."""
+    """Raw subscriptions -> ``RecordingSession`` (one bag, split per run or per episode)."""
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('recorder', **kwargs)
-        problem_name = self.declare_parameter(
-            'problem', 'acrobot', _ro('msg_configs/<problem>.yaml to record')).value
-        output_dir = self.declare_parameter(
-            'output_dir', 'recordings', _ro('directory of the MCAP files')).value
-        self.declare_parameter('topics', Parameter.Type.STRING_ARRAY,
-                               _ro('topics: name or name:pkg/msg/Type (default: the problem)'))
-        split = self.declare_parameter('split', 'run', _ro(' or '.join(SPLITS))).value
-        chunk_size = self.declare_parameter(
-            'chunk_size', DEFAULT_CHUNK_SIZE, _ro('uncompressed chunk size [bytes]')).value
-        flush_period = self.declare_parameter(
-            'flush_period', 1.0, _ro('close the open chunk this often [s]; 0: never')).value
-        compression = self.declare_parameter(
-            'compression', 'zstd', _ro(' or '.join(COMPRESSIONS))).value
-        depth = self.declare_parameter(
-            'queue_depth', 1000, _ro('subscription history depth')).value
-        delta = self.declare_parameter(
-            'delta', 0.0, _ro('goal delta for the metadata; 0: the problem default')).value
-        if depth < 1:
-            raise SapgaError(f'recorder: queue_depth {depth}: expected >= 1')
-        if flush_period < 0:
-            raise SapgaError(f'recorder: flush_period {flush_period}: expected >= 0 s')
-
-        self._problem = load_problem(problem_name)
-        ros = self._problem.ros
-        given = ros.get('topics') if isinstance(ros.get('topics'), dict) else {}
-        role_topics = {role: self._resolve(str(given.get(role) or DEFAULT_ROLE_TOPICS[role]))
-                       for role in ROLE_TYPES}
-        wanted = self._wanted_topics(role_topics)
-        self._qos = self._subscription_qos(ros.get('qos') or {}, depth)
-        event_topic = role_topics['event']
+        p = self._declare_parameters()
+        self._problem = load_problem(p['problem'])
+        self._roles = {role: self._resolve(name)
+                       for role, name in topic_names(self._problem).items() if role in ROLE_TYPES}
+        self._depth = p['queue_depth']
+        wanted = self._wanted_topics()
+        name = p['bag'] or f'{self._problem.name}_{utc_stamp()}'
+        path = free_bag_path(p['output_dir'], name) if not p['bag'] else \
+            self._plain_name(p['output_dir'], p['bag'])
+        delta = p['delta'] if p['delta'] > 0 else self._problem.default_delta
         self._session = RecordingSession(
-            output_dir, f'{self._problem.name}_{utc_stamp()}', split=split,
-            event_topic=event_topic, chunk_size=chunk_size, compression=compression,
-            metadata={'problem': self._problem.name,
-                      'delta': repr(float(delta) if delta > 0 else self._problem.default_delta),
-                      'topics': json.dumps(role_topics, sort_keys=True),
+            path, split=p['split'], event_topic=self._roles['event'],
+            chunk_size=p['chunk_size'], compression=p['compression'],
+            metadata={'problem': self._problem.name, 'delta': repr(float(delta)),
+                      'topics': json.dumps(self._roles, sort_keys=True),
                       'state_names': json.dumps(self._problem.state_names),
                       'node': self.get_fully_qualified_name()})
-        self._channels: dict[str, ChannelInfo] = {}
-        self._pending: dict[str, None] = {}
+        self._subs: dict[str, tuple[Any, str, QoSProfile]] = {}
+        self._pending: dict[str, str | None] = {}
+        self.write_errors = 0
         # the event topic first: of messages ready together, the executor takes it first, so
         # an episode's first messages land in its own file (split 'episode')
-        for topic, type_name in sorted(wanted.items(), key=lambda kv: kv[0] != event_topic):
-            if type_name:
-                self._subscribe(topic, type_name)
-            else:
-                self._pending[topic] = None
-        if self._pending:
-            self._discovery = self.create_timer(1.0, self._discover)
-        if flush_period > 0:
-            self._flusher = self.create_timer(flush_period, self._session.flush)
-        self.get_logger().info(f'recording {", ".join(wanted)} to '
-                               f'{Path(output_dir).resolve()} (split per {split})')
+        for topic, type_name in sorted(wanted.items(),
+                                       key=lambda kv: kv[0] != self._roles['event']):
+            self._pending[topic] = type_name
+        self._check_graph()
+        self._graph_timer = self.create_timer(GRAPH_PERIOD_S, self._check_graph)
+        if p['flush_period'] > 0:
+            self._flusher = self.create_timer(p['flush_period'], self._session.flush)
+        self._ready_srv = self.create_service(Trigger, '~/ready', self._on_ready)
+        self.get_logger().info(f'recording {", ".join(wanted)} to {self._session.path} '
+                               f'(split per {p["split"]})')
+
+    # parameters -------------------------------------------------------------------------
+
+    def _declare_parameters(self) -> dict[str, Any]:
+        specs = [('problem', 'acrobot', 'msg_configs/<problem>.yaml to record'),
+                 ('output_dir', 'recordings', 'directory the bag directory is made in'),
+                 ('bag', '', "name of the bag directory ('' = <problem>_<UTC time>)"),
+                 ('split', 'run', 'run or episode'),
+                 ('chunk_size', DEFAULT_CHUNK_SIZE, 'uncompressed chunk size [bytes]'),
+                 ('flush_period', 1.0, 'close the open chunk this often [s]; 0: by size'),
+                 ('compression', 'zstd', 'zstd, lz4 or none'),
+                 ('queue_depth', 1000, 'subscription history depth'),
+                 ('delta', 0.0, 'goal delta for the metadata; 0: the problem default')]
+        values = {}
+        try:
+            for name, default, text in specs:
+                values[name] = self.declare_parameter(name, default, ParameterDescriptor(
+                    description=text, read_only=True)).value
+            self.declare_parameter('topics', Parameter.Type.STRING_ARRAY, ParameterDescriptor(
+                description='topics: name or name:pkg/msg/Type (default: the problem)',
+                read_only=True))
+        except ParameterException as exc:
+            raise SapgaError(f'recorder: {exc}') from None
+        for name, low, high in (('queue_depth', 1, 1_000_000), ('flush_period', 0.0, 3600.0),
+                                ('delta', 0.0, 1e9)):
+            if not low <= values[name] <= high:     # NaN fails both
+                raise SapgaError(f'recorder: {name} {values[name]}: expected a value in '
+                                 f'[{low:g}, {high:g}]')
+        return values
+
+    @staticmethod
+    def _plain_name(output_dir: str, bag: str) -> Path:
+        if '/' in bag or bag in ('.', '..') or len(bag) > 200:
+            raise SapgaError(f'recorder: bag {bag[:80]!r}: expected a plain directory name')
+        return Path(output_dir) / bag
 
     def _resolve(self, name: str) -> str:
         try:
@@ -157,119 +163,170 @@ class RecorderNode(Node):
         except Exception as exc:  # noqa: BLE001 - rclpy raises several kinds for bad names
             raise SapgaError(f'recorder: topic name {name!r} is not valid ({exc})') from exc
 
-    def _wanted_topics(self, role_topics: dict[str, str]) -> dict[str, str | None]:
+    def _wanted_topics(self) -> dict[str, str | None]:
         """Resolved topic -> message type (None: find it on the graph) of ``topics``."""
-        role_types = {topic: ROLE_TYPES[role] for role, topic in role_topics.items()}
+        role_types = {topic: ROLE_TYPES[role] for role, topic in self._roles.items()}
         requested = self.get_parameter_or(
             'topics', Parameter('topics', Parameter.Type.STRING_ARRAY, [])).value
         wanted: dict[str, str | None] = {}
-        for entry in requested or role_topics.values():
+        for entry in requested or self._roles.values():
             name, _, type_name = str(entry).partition(':')
             topic = self._resolve(name.strip())
             wanted[topic] = (full_type_name(type_name.strip()) if type_name.strip()
                              else role_types.get(topic))
         return wanted
 
-    def _subscription_qos(self, qos: dict, depth: int) -> QoSProfile:
-        reliability = str(qos.get('reliability', 'reliable'))
-        durability = str(qos.get('durability', 'volatile'))
-        if reliability not in _RELIABILITY or durability not in _DURABILITY:
-            raise SapgaError(f'{self._problem.source}: ros.qos: reliability {reliability!r} / '
-                             f'durability {durability!r} not understood')
-        return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
-                          reliability=_RELIABILITY[reliability],
-                          durability=_DURABILITY[durability])
+    # subscriptions ----------------------------------------------------------------------
 
-    @property
-    def message_count(self) -> int:
-        """Messages recorded so far (all files)."""
-        return self._session.message_count
+    def _base_qos(self, topic: str) -> QoSProfile:
+        role = next((r for r, t in self._roles.items() if t == topic), None)
+        if role is None:
+            return QoSProfile(depth=self._depth)
+        return role_qos(self._problem, role, self._depth)
 
-    def _subscribe(self, topic: str, type_name: str) -> None:
+    def _offers(self, topic: str) -> list[QoSProfile]:
+        return [info.qos_profile for info in self.get_publishers_info_by_topic(topic)]
+
+    def _subscribe(self, topic: str, type_name: str, qos: QoSProfile) -> bool:
         try:
             message_definition(type_name)       # the schema must be writable
             msg_type = message_class(type_name)
         except SapgaError as exc:
             self.get_logger().error(f'not recording {topic}: {exc}')
-            return
-        self.create_subscription(msg_type, topic,
-                                 functools.partial(self._on_message, topic, type_name),
-                                 self._qos, raw=True)
+            return False
+        sub = self.create_subscription(msg_type, topic,
+                                       functools.partial(self._on_message, topic, type_name),
+                                       qos, raw=True)
+        self._subs[topic] = (sub, type_name, qos)
+        return True
 
-    def _discover(self) -> None:
-        """Subscribe to pending topics whose type has appeared on the graph."""
-        for topic, types in self.get_topic_names_and_types():
-            if topic in self._pending and types:
+    def _check_graph(self) -> None:
+        """Subscribe to pending topics (type known or now published); subscribe again to a
+        topic whose publishers use another type (nothing recorded yet) or offer less than
+        the subscription asks (its QoS could not match them)."""
+        for topic, type_name in list(self._pending.items()):
+            publishers = self.get_publishers_info_by_topic(topic)
+            type_name = type_name or next((p.topic_type for p in publishers), None)
+            if type_name:
                 del self._pending[topic]
-                self._subscribe(topic, types[0])
-                self.get_logger().info(f'found {topic} ({types[0]})')
-        if not self._pending:
-            self._discovery.cancel()
+                self._subscribe(topic, type_name, adapt_to_offers(
+                    self._base_qos(topic), [p.qos_profile for p in publishers]))
+        for topic, (sub, type_name, qos) in list(self._subs.items()):
+            publishers = self.get_publishers_info_by_topic(topic)
+            offers = [p.qos_profile for p in publishers]
+            types = sorted({p.topic_type for p in publishers})
+            if types and type_name not in types and not self._recorded(topic):
+                self.get_logger().warning(f'{topic}: published as {types[0]}, not {type_name}: '
+                                          f'recording {types[0]}')
+                self.destroy_subscription(sub)      # DDS: one type per topic and process
+                del self._subs[topic]
+                if not self._subscribe(topic, types[0], adapt_to_offers(qos, offers)):
+                    self._pending[topic] = None
+            elif incompatible(qos, offers):
+                new = adapt_to_offers(qos, offers)
+                self.get_logger().warning(f'{topic}: a publisher offers less than '
+                                          f'{describe(qos)}: subscribing {describe(new)}')
+                if self._subscribe(topic, type_name, new):
+                    self.destroy_subscription(sub)
 
-    def _channel(self, topic: str, type_name: str) -> ChannelInfo:
-        """Channel info of a topic, built at its first message from the publishers' offers."""
-        info = self._channels.get(topic)
-        if info is None:
-            offers = [profile_dict(p.qos_profile)
-                      for p in self.get_publishers_info_by_topic(topic)]
-            if not offers:
-                offers = [profile_dict(self._qos) | {'depth': self._problem.ros.get(
-                    'qos', {}).get('depth', 10)}]
-            info = ChannelInfo(topic, type_name, qos_profiles_yaml(offers))
-            self._channels[topic] = info
-        return info
+    def _recorded(self, topic: str) -> bool:
+        """Whether the bag has the topic (its type and QoS are then fixed)."""
+        return topic in self._session.bag.metadata.topics
+
+    def missing(self) -> list[str]:
+        """What the recorder lacks to hear every publisher of every recorded topic."""
+        lacks = [f'{t} (type unknown: no publisher yet)' for t in self._pending]
+        for topic, (sub, _, _) in self._subs.items():
+            matched, on_graph = sub.get_publisher_count(), self.count_publishers(topic)
+            if matched < max(1, on_graph):
+                lacks.append(f'{topic} ({matched} of {max(1, on_graph)} publishers matched)')
+        return lacks
+
+    def _on_ready(self, request: Trigger.Request, response: Trigger.Response
+                  ) -> Trigger.Response:
+        lacks = self.missing()
+        response.success = not lacks
+        response.message = (f'recording {len(self._subs)} topics to {self._session.path}'
+                            if not lacks else 'waiting for ' + '; '.join(lacks))
+        return response
+
+    # messages ---------------------------------------------------------------------------
+
+    @property
+    def message_count(self) -> int:
+        """Messages recorded so far."""
+        return self._session.message_count
+
+    @property
+    def bag_path(self) -> Any:
+        return self._session.path
 
     def _on_message(self, topic: str, type_name: str, data: bytes,
                     msg_info: dict[str, Any]) -> None:
         receive_ns = int(msg_info.get('received_timestamp') or 0) or time.time_ns()
         source_ns = int(msg_info.get('source_timestamp') or 0)
-        self._session.write(self._channel(topic, type_name), data, receive_ns,
-                            publish_time_ns(type_name, data, source_ns, receive_ns))
+        if not self._recorded(topic):
+            offers = [offered_profile(q) for q in self._offers(topic)] or [
+                offered_profile(self._subs[topic][2])]
+            self._session.add_topic(TopicInfo(topic, type_name, offers, type_hash(type_name)))
+        try:
+            self._session.write(topic, data, receive_ns,
+                                publish_time_ns(type_name, data, source_ns, receive_ns))
+        except SapgaError as exc:
+            self.write_errors += 1
+            self.get_logger().error(f'message on {topic} not recorded ({self.write_errors} so '
+                                    f'far): {exc}', throttle_duration_sec=THROTTLE_S)
 
     def destroy_node(self) -> None:
-        """Finish the open MCAP file (summary, footer), then destroy the node."""
+        """Finish the bag (summary, footer, metadata.yaml), then destroy the node."""
         try:
-            lines = [f'wrote {p}' for p in self._session.paths] or [
-                'no message received: no file written']
+            s = self._session
+            line = (f'wrote {s.path}: {s.message_count} messages in '
+                    f'{len(s.bag.metadata.files)} storage file(s)')
             try:
-                self._session.close()
+                s.close()
             except SapgaError as exc:
-                lines.append(f'error: {exc}')
-            for line in lines:
-                if self.context.ok():
-                    self.get_logger().info(line)
-                else:   # after a signal the context is down and rosout is gone
-                    print(f'[recorder] {line}', file=sys.stderr, flush=True)
+                line = f'error: {exc}'
+            if self.write_errors:
+                line += f'; {self.write_errors} messages could not be written'
+            if self.context.ok():
+                self.get_logger().info(line)
+            else:   # after a signal the context is down and rosout is gone
+                print(f'[recorder] {line}', file=sys.stderr, flush=True)
+        except AttributeError:
+            pass        # the constructor failed before the session existed
         finally:
             super().destroy_node()
 
 
 def _no_interrupt(signum: int, frame: Any) -> None:
-    """SIGINT: nothing here; rclpy's handler has already stopped spin()."""
+    """SIGINT: nothing here; rclpy's handler has already stopped spinning."""
 
 
 def main(args: list[str] | None = None) -> int:
-    """Run the recorder until Ctrl-C, SIGTERM or shutdown; the MCAP file is finished."""
-    # rclpy's SIGINT and SIGTERM handlers shut the context down: spin() then raises
-    # ExternalShutdownException between callbacks and `finally` finishes the file.  They chain
-    # to the Python handler, which must not raise KeyboardInterrupt in the middle of a write.
+    """Run the recorder until Ctrl-C, SIGTERM or shutdown; the bag is finished."""
+    # rclpy's SIGINT and SIGTERM handlers shut the context down: spinning then ends between
+    # callbacks and `finally` finishes the bag.  They chain to the Python handler, which must
+    # not raise KeyboardInterrupt in the middle of a write.
     signal.signal(signal.SIGINT, _no_interrupt)
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.ALL)
     node = None
     try:
         node = RecorderNode()
-        rclpy.spin(node)
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        spin_guarded(executor, node.get_logger())
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except SapgaError as exc:
-        print(f'recorder_node: error: {exc}', file=sys.stderr, flush=True)
+        print(f'recorder_node: error: {" ".join(str(exc).split())}', file=sys.stderr, flush=True)
         return 1
     except Exception:  # noqa: BLE001
         if rclpy.ok():
             raise
         # Ctrl-C while starting up: the context was shut down under the constructor
     finally:
-        signal.signal(signal.SIGTERM, signal.SIG_IGN)   # a second SIGTERM: let the file finish
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)   # a second SIGTERM: let the bag finish
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()

@@ -13,7 +13,9 @@ Everything a node needs from a problem's ``ros:`` section, in one place:
 * ``stamp_ns``/``steady_clock``/``THROTTLE_S``: time helpers;
 * ``run_node(make_node, args)``: the body of every executable's ``main()``: ``rclpy.init``,
   build the node, spin, clean shutdown on Ctrl-C, one-line error and exit code 1 on a
-  configuration error.
+  configuration error;
+* ``spin_guarded(executor, logger)``: spin so that no callback's exception ends the node: each
+  is logged as one line and the node goes on (``NodeExit`` alone stops it).
 """
 from __future__ import annotations
 
@@ -58,6 +60,30 @@ _HISTORY = {'keep_last': HistoryPolicy.KEEP_LAST, 'keep_all': HistoryPolicy.KEEP
 
 class MessageError(SapgaError):
     """A received message fails validation (wrong names, sizes, non-finite values)."""
+
+
+class NodeExit(SapgaError):
+    """Raised by a callback that must stop its node: one line on stderr, exit code 1."""
+
+
+def one_line(exc: BaseException, limit: int = 300) -> str:
+    """``Type: message`` of an exception on one line, at most ``limit`` characters."""
+    text = ' '.join(str(exc).split())
+    return f'{type(exc).__name__}: {text}'[:limit]
+
+
+def spin_guarded(executor: Executor, logger: Any) -> None:
+    """Spin ``executor`` until its context shuts down; a callback that raises is logged as
+    one line and the executor goes on.  ``NodeExit``, Ctrl-C and external shutdown end it."""
+    while executor.context.ok():
+        try:
+            executor.spin_once()
+        except (NodeExit, KeyboardInterrupt, ExternalShutdownException):
+            raise
+        except Exception as exc:  # noqa: BLE001 - no callback may end the node
+            if not executor.context.ok():
+                return
+            logger.error(f'callback failed, going on: {one_line(exc)}')
 
 
 def topic_names(problem: Problem) -> dict[str, str]:
@@ -220,12 +246,9 @@ def run_node(make_node: Callable[[], Node], args: list[str] | None = None,
     code = 0
     try:
         node = make_node()
-        if executor is None:
-            rclpy.spin(node)
-        else:
-            ex = executor()
-            ex.add_node(node)
-            ex.spin()
+        ex = executor() if executor is not None else rclpy.get_global_executor()
+        ex.add_node(node)
+        spin_guarded(ex, node.get_logger())
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except (SapgaError, ParameterException) as exc:

@@ -20,6 +20,9 @@ max_episodes        integer   0               auto_reset starts no episode beyon
                                               (0 = unlimited); the reset service still does
 republish_period    double    0.2             [s] lockstep: re-publish the waiting state
                                               (same stamp) this often; 0 = never
+wait_for_recorder   string    ''              the first episode starts once this recorder
+                                              node is ready (recorder_gate.py); '' = at once
+recorder_timeout    double    60.0            [s] waiting longer stops the node (exit 1)
 ==================  ========  ==============  ===============================================
 
 Time: every published new state is one tick (``dt * substeps``, 0.05 s for the pendulums)
@@ -51,6 +54,7 @@ from sim_nodes.ros.common import (CLOCK_QOS, EVENT_QOS, QUIET_PUBLISHER, THROTTL
 from sim_nodes.goal import goal_arrays, goal_delta
 from sim_nodes.models import model_module
 from sim_nodes.problem import load_problem
+from sim_nodes.ros.recorder_gate import RecorderGate
 
 MODES = ('realtime', 'lockstep')
 
@@ -144,7 +148,7 @@ class SimNode(Node):
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
         self._configure_timers()
-        self._start_episode()
+        self._gate = RecorderGate(self, self._start_episode)  # the first episode
         s = self.settings
         self.get_logger().info(
             f'{problem.name} sim: mode {s.mode}, delta {s.delta}, n_step {s.n_step}, '
@@ -230,7 +234,8 @@ class SimNode(Node):
         self._advance(self._command)
 
     def _on_republish(self) -> None:
-        self._state_pub.publish(self._state_msg)
+        if self._tick >= 0:             # a state was published (the recorder gate is open)
+            self._state_pub.publish(self._state_msg)
 
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response
                   ) -> Trigger.Response:

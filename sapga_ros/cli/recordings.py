@@ -1,0 +1,99 @@
+"""``sapga inspect`` and ``sapga bag``: the recording commands.
+
+    sapga inspect BAG_OR_FILE [--json] [--plot OUT.png] [--episode N]
+    sapga bag reindex BAG_OR_FILE
+
+``inspect`` summarises a rosbag2 bag directory or one MCAP file (``recording/inspect.py``)
+and plots one episode (``viz/episode_plot.py``); a recording cut short is summarised as far
+as it can be read, with a warning on stderr.  ``bag reindex`` completes a killed recording,
+like ``ros2 bag reindex`` (``recording/repair.py``).  Unreadable input: one line on stderr,
+exit status 2.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from sapga_ros.errors import McapError, SapgaError
+
+EXIT_USAGE = 2
+
+
+def add_inspect_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument('path', metavar='BAG', help='bag directory or .mcap file')
+    parser.add_argument('--json', action='store_true', help='print one JSON object')
+    parser.add_argument('--plot', metavar='OUT.png', help='plot one episode to a PNG file')
+    parser.add_argument('--episode', type=int, metavar='N',
+                        help='episode to plot (default: the one with the highest return)')
+
+
+def add_bag_arguments(parser: argparse.ArgumentParser) -> None:
+    sub = parser.add_subparsers(dest='bag_command', required=True, metavar='VERB')
+    r = sub.add_parser('reindex', help='complete a killed recording (summary, footer, '
+                                       'metadata.yaml), like ros2 bag reindex')
+    r.add_argument('path', metavar='BAG', help='bag directory or .mcap file')
+
+
+def inspect_summary(path: str, plot: str | None = None, episode: int | None = None
+                    ) -> dict:
+    """The summary of a recording (and its plot, if asked); McapError if unreadable."""
+    from sapga_ros.recording.inspect import fmt, pick_episode, summarize
+    from sapga_ros.recording.reader import read_recording
+
+    rec = read_recording(path)
+    try:
+        summary, episodes, problem = summarize(rec)
+    except Exception as exc:  # noqa: BLE001 - no file content may crash the CLI
+        raise McapError(f'{path}: messages do not match their roles '
+                        f'({type(exc).__name__}: {exc})'[:300]) from exc
+    if rec.error:
+        print(f'warning: {rec.error}; summarising the {len(rec.messages)} messages read',
+              file=sys.stderr)
+    if plot:
+        from sapga_ros.viz.episode_plot import plot_episode
+        if problem is None:
+            raise McapError(f'{path}: cannot plot: {summary["problem_error"]}')
+        i = pick_episode(episodes, summary['episodes'], episode)
+        ep = summary['episodes'][i]
+        title = (f'{problem.name}: episode {fmt(ep["episode"], "d")}, {ep["end"]}, '
+                 f'return {fmt(ep["return"], ".2f")}, delta* {fmt(ep["delta_star"], ".4f")}')
+        try:
+            plot_episode(episodes[i], problem, plot, title)
+        except OSError as exc:
+            raise McapError(f'{plot}: cannot write the plot ({exc.strerror})') from exc
+        summary['plot'] = {'file': plot, 'episode': ep['episode']}
+    return summary
+
+
+def run_inspect(path: str, json_out: bool = False, plot: str | None = None,
+                episode: int | None = None) -> int:
+    """Print the summary of a recording (text or one JSON object); the exit status."""
+    from sapga_ros.recording.inspect import fmt, format_summary
+    try:
+        summary = inspect_summary(path, plot, episode)
+    except SapgaError as exc:
+        print(f'sapga inspect: error: {exc}', file=sys.stderr)
+        return EXIT_USAGE
+    if json_out:
+        print(json.dumps(summary, allow_nan=False, default=str))
+    else:
+        print(format_summary(summary))
+        if plot:
+            print(f'plot:      {plot} (episode {fmt(summary["plot"]["episode"], "d")})')
+    return 0
+
+
+def cmd_inspect(args: argparse.Namespace) -> int:
+    return run_inspect(args.path, json_out=args.json, plot=args.plot, episode=args.episode)
+
+
+def cmd_bag(args: argparse.Namespace) -> int:
+    from sapga_ros.recording.repair import reindex
+
+    result = reindex(args.path)
+    what = (f'repaired {", ".join(p.name for p in result.repaired)}' if result.repaired
+            else 'every storage file was complete')
+    tail = '; wrote metadata.yaml' if result.metadata_written else ''
+    print(f'{result.path}: {what}{tail}; {result.messages} messages')
+    return 0

@@ -1,0 +1,89 @@
+"""Bounded decompression of MCAP chunks: a small file never becomes a large allocation.
+
+A chunk states its uncompressed size; a hostile file states a huge one (a 17 KB zstd bomb
+expands to gigabytes).  ``chunk_records`` refuses a chunk above ``MAX_CHUNK_BYTES`` or above
+what is left of the reading's ``Budget`` (``BUDGET_FLOOR`` plus ``BUDGET_RATIO`` times the
+bytes on disk) before decompressing anything, decompresses with a hard output limit, checks
+the size and CRC, and only then parses the records inside with the ``mcap`` library.
+"""
+from __future__ import annotations
+
+import io
+import zlib
+
+from mcap.records import Chunk, McapRecord
+from mcap.stream_reader import breakup_chunk
+
+from sapga_ros.errors import McapError
+
+MAX_CHUNK_BYTES = 64 << 20      # rosbag2's largest preset chunk is 4 MiB
+BUDGET_FLOOR = 8 << 20          # [bytes] decompressed, whatever the file size
+BUDGET_RATIO = 100              # ROS messages rarely compress 10:1; bombs do 10000:1
+
+
+class Budget:
+    """How many decompressed bytes one reading may still produce."""
+
+    def __init__(self, size_on_disk: int) -> None:
+        self.left = BUDGET_FLOOR + BUDGET_RATIO * max(0, size_on_disk)
+
+    def take(self, n: int, where: str) -> None:
+        if n > MAX_CHUNK_BYTES:
+            raise McapError(f'{where}: chunk states {n} uncompressed bytes, more than the '
+                            f'limit of {MAX_CHUNK_BYTES >> 20} MiB (a decompression bomb?)')
+        if n > self.left:
+            raise McapError(f'{where}: chunks expand beyond {BUDGET_RATIO} times the file '
+                            'size (a decompression bomb?)')
+        self.left -= n
+
+
+def _zstd(data: bytes, limit: int) -> bytes:
+    import zstandard
+
+    out = bytearray()
+    source = io.BytesIO(data)
+    with zstandard.ZstdDecompressor().stream_reader(source, read_across_frames=True) as reader:
+        while len(out) <= limit:
+            block = reader.read(min(1 << 20, limit + 1 - len(out)))
+            if not block:
+                break
+            out += block
+    return bytes(out)
+
+
+def _lz4(data: bytes, limit: int) -> bytes:
+    import lz4.frame
+
+    return lz4.frame.LZ4FrameDecompressor().decompress(data, max_length=limit)
+
+
+DECOMPRESSORS = {'zstd': _zstd, 'lz4': _lz4}
+
+
+def chunk_records(chunk: Chunk, budget: Budget, where: str) -> list[McapRecord]:
+    """The Schema, Channel and Message records of a chunk, decompressed within ``budget``."""
+    size = chunk.uncompressed_size
+    budget.take(size, where)
+    if chunk.compression == '':
+        raw = chunk.data
+    elif chunk.compression in DECOMPRESSORS:
+        try:
+            raw = DECOMPRESSORS[chunk.compression](chunk.data, size + 1)
+        except Exception as exc:  # noqa: BLE001 - any codec error means a damaged chunk
+            raise McapError(f'{where}: {chunk.compression} chunk does not decompress '
+                            f'({type(exc).__name__})') from exc
+    else:
+        raise McapError(f'{where}: unknown chunk compression {chunk.compression[:20]!r}')
+    if len(raw) != size:
+        raise McapError(f'{where}: chunk holds {len(raw)}{"+" if len(raw) > size else ""} '
+                        f'bytes, its record says {size}')
+    if chunk.uncompressed_crc and zlib.crc32(raw) != chunk.uncompressed_crc:
+        raise McapError(f'{where}: corrupt chunk (CRC mismatch)')
+    plain = Chunk(compression='', data=raw, message_end_time=chunk.message_end_time,
+                  message_start_time=chunk.message_start_time, uncompressed_crc=0,
+                  uncompressed_size=size)
+    try:
+        return breakup_chunk(plain)
+    except Exception as exc:  # noqa: BLE001 - any parse failure means damaged data
+        raise McapError(f'{where}: damaged records inside a chunk ({type(exc).__name__})'
+                        ) from exc

@@ -1,0 +1,233 @@
+"""Episodes of a recording: its messages cut at ``episode_event`` messages.
+
+Episodes are cut at ``episode_event`` messages (docs/ros_interface.md), all topics ordered by
+receive time: an episode runs from its ``start`` event to its ``goal`` / ``step_limit`` /
+``reset`` event; messages after that end and before the next start belong to no episode.
+States also carry their sim time, and events the sim time of their state, so a state that
+arrives just after its episode's end event still goes to its episode.  The state layout
+(which JointState joint and field is which coordinate) comes from the problem.
+"""
+from __future__ import annotations
+
+import json
+import math
+from collections import Counter
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from sapga_ros.recording.events import (DEFAULT_ROLE_TOPICS, EPISODE_END_EVENTS,
+                                        MAX_EVENT_CHARS, ROLE_TYPES, event_episode, parse_event)
+from sapga_ros.recording.reader import DecodedMessage, Recording, schema_type
+
+
+@dataclass
+class Episode:
+    """What the recording holds of one episode."""
+
+    number: int | None
+    start_ns: int | None = None     # sim time of its first state (the start event's 'time')
+    end_ns: int | None = None       # sim time of its last state (the end event's 'time')
+    end: str = 'incomplete'         # goal | step_limit | reset | incomplete
+    end_event: dict[str, Any] | None = None
+    rewards: list[float] = field(default_factory=list)
+    states: dict[int, np.ndarray | None] = field(default_factory=dict)  # stamp [ns] -> state
+    commands: list[tuple[int | None, float]] = field(default_factory=list)  # (state stamp, u)
+    exemplars: list[int] = field(default_factory=list)
+    latest: int | None = None       # stamp of the latest state heard so far
+
+    @property
+    def closed(self) -> bool:
+        return self.end != 'incomplete'
+
+    def owns(self, stamp: int) -> bool:
+        """Whether a state stamped ``stamp`` lies within this episode's sim-time span."""
+        if self.closed and self.end_ns is None:
+            return False
+        return ((self.start_ns is None or stamp >= self.start_ns)
+                and (self.end_ns is None or stamp <= self.end_ns))
+
+    def add_state(self, stamp: int, s: np.ndarray | None) -> None:
+        if stamp not in self.states:        # lockstep re-publishes repeat a stamp
+            self.states[stamp] = s
+            self.latest = stamp if self.latest is None else max(self.latest, stamp)
+
+    def trajectory(self) -> tuple[np.ndarray, np.ndarray]:
+        """(stamps [ns], states) of the states with a known layout, in sim-time order."""
+        stamps = sorted(t for t, s in self.states.items() if s is not None)
+        if not stamps:
+            return np.zeros(0, dtype=np.int64), np.zeros((0, 0))
+        return np.array(stamps, dtype=np.int64), np.vstack([self.states[t] for t in stamps])
+
+
+def finite(value: Any) -> float | None:
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        return None
+    return x if math.isfinite(x) else None
+
+
+def _json_number(x: float | None) -> float | None:
+    return None if x is None or not math.isfinite(x) else float(x)
+
+
+def topic_roles(rec: Recording, problem: Any) -> dict[str, str]:
+    """topic -> role (state, command, reward, event, exemplar) of the recorded topics."""
+    types = {name: schema_type(t) for name, t in rec.topics.items()}
+    roles: dict[str, str] = {}
+    try:
+        meta_topics = json.loads(rec.metadata.get('topics', '{}')[:MAX_EVENT_CHARS])
+    except (ValueError, RecursionError):
+        meta_topics = {}
+    if isinstance(meta_topics, dict):
+        for role, topic in meta_topics.items():
+            if role in ROLE_TYPES and types.get(topic) == ROLE_TYPES[role]:
+                roles[topic] = role
+    if roles:
+        return roles
+    names = dict(DEFAULT_ROLE_TOPICS)
+    if problem is not None and isinstance(problem.ros.get('topics'), dict):
+        names.update(problem.ros['topics'])
+    for topic, type_name in types.items():
+        base = topic.rstrip('/').rsplit('/', 1)[-1]
+        for role, name in names.items():
+            if base == str(name).rsplit('/', 1)[-1] and type_name == ROLE_TYPES[role]:
+                roles[topic] = role
+    return roles
+
+
+def state_vector(msg: Any, problem: Any) -> np.ndarray | None:
+    """The problem's state vector from a JointState, or None if a coordinate is missing."""
+    names = list(msg.name)
+    out = np.empty(problem.dim)
+    for i, c in enumerate(problem.state):
+        if c.joint not in names:
+            return None
+        values = msg.position if c.field == 'position' else msg.velocity
+        j = names.index(c.joint)
+        if j >= len(values):
+            return None
+        out[i] = float(values[j])
+    return out if np.all(np.isfinite(out)) else None
+
+
+def _event_ns(ev: dict[str, Any]) -> int | None:
+    t = finite(ev.get('time'))
+    return None if t is None else int(round(t * 1e9))
+
+
+def _stamp_ns(msg: Any) -> int:
+    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+
+
+def build_episodes(messages: list[DecodedMessage], roles: dict[str, str],
+                   problem: Any) -> tuple[list[Episode], int]:
+    """Cut the messages into episodes; returns (episodes, malformed events).
+
+    Messages are taken in receive order.  States also carry their sim time, and events the
+    sim time of their state ('time'), so a state that arrives just after its episode's end
+    event (or just before the next start event) still goes to the episode it belongs to.
+    """
+    timeline = sorted((m for m in messages if m.topic in roles),
+                      key=lambda m: (m.log_time, m.index))
+    episodes: list[Episode] = []
+    orphans: list[tuple[int, np.ndarray | None]] = []   # states heard between episodes
+    bad_events = 0
+
+    def current() -> Episode | None:
+        return episodes[-1] if episodes else None
+
+    def open_episode() -> Episode:
+        ep = current()
+        if ep is None:          # the recording began inside an episode
+            ep = Episode(None)
+            episodes.append(ep)
+        return ep
+
+    for m in timeline:
+        role = roles[m.topic]
+        if role == 'event':
+            ev = parse_event(getattr(m.value, 'data', None))
+            if ev is None:
+                bad_events += 1
+                continue
+            kind = ev.get('event')
+            number = event_episode(ev)
+            if kind == 'start':
+                ep = Episode(number, start_ns=_event_ns(ev))
+                episodes.append(ep)
+                for stamp, s in orphans:
+                    if ep.owns(stamp):
+                        ep.add_state(stamp, s)
+                orphans.clear()
+            elif kind in EPISODE_END_EVENTS and not open_episode().closed:
+                ep = open_episode()
+                ep.number = number if ep.number is None else ep.number
+                ep.end, ep.end_event, ep.end_ns = kind, ev, _event_ns(ev)
+            continue
+        if role == 'state':
+            stamp = _stamp_ns(m.value)
+            s = state_vector(m.value, problem) if problem is not None else None
+            home = next((ep for ep in reversed(episodes[-2:]) if ep.owns(stamp)), None)
+            if home is not None:
+                home.add_state(stamp, s)
+            elif not episodes:
+                open_episode().add_state(stamp, s)
+            elif episodes[-1].closed:
+                orphans.append((stamp, s))
+            continue
+        ep = open_episode()
+        if ep.closed:
+            continue            # between episodes: belongs to none
+        value = finite(m.value.data)
+        if value is None:
+            continue
+        if role == 'reward':
+            ep.rewards.append(value)
+        elif role == 'command':     # held from the latest state on (zero-order hold)
+            ep.commands.append((ep.latest, value + 0.0))
+        elif role == 'exemplar':
+            ep.exemplars.append(int(value))
+    return episodes, bad_events
+
+
+def episode_summary(ep: Episode, problem: Any, goal_delta: float | None) -> dict[str, Any]:
+    """One episode as a JSON-ready dict."""
+    ev = ep.end_event or {}
+    ret_rewards = float(np.sum(ep.rewards)) if ep.rewards else None
+    delta_states = None
+    _, states = ep.trajectory()
+    if problem is not None and len(states):
+        from sim_nodes.goal import delta_of
+        delta_states = min(delta_of(problem, s) for s in states)
+    steps = ev.get('step') if isinstance(ev.get('step'), int) else None
+    if steps is None and ep.rewards:
+        steps = len(ep.rewards)
+    ret = finite(ev.get('return'))
+    ret = ret if ret is not None else ret_rewards
+    delta_star = finite(ev.get('delta_star'))    # absent from the event: from the states
+    if delta_star is None and 'delta_star' not in ev:
+        delta_star = delta_states
+    gd = finite(ev.get('goal_delta')) or goal_delta
+    actions = Counter(v for _, v in ep.commands)
+    return {
+        'episode': ep.number, 'end': ep.end, 'steps': steps,
+        'return': _json_number(ret),
+        'delta_star': _json_number(delta_star), 'goal_delta': _json_number(gd),
+        'reached_goal': ep.end == 'goal',
+        'steps_to_goal': steps if ep.end == 'goal' else None,
+        'achieved': bool(delta_star is not None and gd is not None and delta_star <= gd),
+        'actions': {_action_key(v): n for v, n in sorted(actions.items())},
+        'exemplars_used': len(set(ep.exemplars)),
+        'messages': {'states': len(ep.states), 'rewards': len(ep.rewards),
+                     'commands': len(ep.commands)},
+        'final_delta': _json_number(finite(ev.get('delta'))),
+        'return_from_rewards': _json_number(ret_rewards),
+        'delta_star_from_states': _json_number(delta_states),
+    }
+
+
+def _action_key(v: float) -> str:
+    return f'{v:g}'

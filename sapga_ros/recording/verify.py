@@ -1,0 +1,44 @@
+"""Is a recording of finished episodes whole?  What the launcher checks before it reports.
+
+For episodes that ran from their ``start`` to their end event (the simulator's end events
+say how many steps each took), a whole recording holds, on the topics of their roles:
+
+- exactly one ``start`` and one end event per episode;
+- one reward per step;
+- every state: the distinct ``header.stamp`` values number the steps plus one initial state
+  per episode (lockstep re-publishes repeat a stamp and count once);
+- in lockstep, a command for every step and every restart (the command answering an
+  episode's final state starts the next one); realtime steps hold the last command.
+"""
+from __future__ import annotations
+
+from typing import Any, Mapping, Sequence
+
+from sapga_ros.recording.events import EPISODE_END_EVENTS, parse_event
+from sapga_ros.recording.reader import Recording
+from sapga_ros.recording.schemas import cdr_string, header_stamp_ns
+
+
+def recording_gaps(rec: Recording, topics: Mapping[str, str],
+                   ends: Sequence[Mapping[str, Any]], lockstep: bool = True) -> list[str]:
+    """What ``rec`` lacks of the episodes that ended with ``ends``; [] when whole.
+
+    ``topics`` maps the roles state, command, reward, event to resolved topic names.
+    """
+    steps = sum(int(e.get('step') or 0) for e in ends)
+    n = len(ends)
+    by_topic: dict[str, list[bytes]] = {}
+    for m in rec.messages:
+        by_topic.setdefault(m.topic, []).append(m.data)
+    kinds = [(parse_event(cdr_string(d)) or {}).get('event')
+             for d in by_topic.get(topics['event'], [])]
+    have = {
+        'start events': (kinds.count('start'), n),
+        'end events': (sum(k in EPISODE_END_EVENTS for k in kinds), n),
+        'rewards': (len(by_topic.get(topics['reward'], [])), steps),
+        'states': (len({header_stamp_ns(d) for d in by_topic.get(topics['state'], [])}),
+                   steps + n),
+    }
+    if lockstep:
+        have['commands'] = (len(by_topic.get(topics['command'], [])), steps + n - 1)
+    return [f'{got} of {want} {what}' for what, (got, want) in have.items() if got < want]

@@ -1,0 +1,203 @@
+"""Nothing lost: recorded launches hold every message, exactly; hostile input on the way.
+
+``sapga launch swingup`` runs 3 lockstep episodes 10 times, each in a fresh ROS domain; every
+bag, read with rosbags' ``AnyReader`` (an independent reader), must hold exactly the
+episodes the offline evaluator computes: every start and end event, every reward, every state
+and every command, in order.  Then the hostile inputs that used to break a recorded run: a
+deeply nested ``episode_event`` on the launcher's ROS thread, a callback that raises, and a
+simulator waiting for a recorder that never comes.
+"""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rosbags.highlevel import AnyReader
+from std_msgs.msg import String
+
+from ros_helpers import executable, free_domain_id
+from sapga_ros.evaluation.any_policy import run_policy_episode
+from sapga_ros.exemplars.policy import ExemplarPolicy
+from sim_nodes.problem import load_problem
+from sim_nodes.ros.common import EVENT_QOS, JointStateLayout, spin_guarded
+from test_launch import launch, the_bag
+
+RUNS = 10
+EPISODES = 3
+DELTA = 0.4         # the policy below reaches it in 62 steps: goal events, short episodes
+
+
+@pytest.fixture(scope='module')
+def policy_file(tmp_path_factory) -> tuple[Path, object]:
+    problem = load_problem('acrobot')
+    rng = np.random.default_rng(7)
+    policy = ExemplarPolicy(problem, rng.uniform(problem.low, problem.high, (60, 4)),
+                            rng.integers(0, 3, 60), meta={'delta': DELTA})
+    path = tmp_path_factory.mktemp('policy') / 'p.json'
+    policy.save(path)
+    return path, run_policy_episode(policy, DELTA)
+
+
+def bag_messages(bag: Path) -> dict[str, list]:
+    """topic -> decoded messages in receive order, read with rosbags' AnyReader."""
+    out: dict[str, list] = {}
+    with AnyReader([bag]) as reader:
+        for connection, _, raw in reader.messages():
+            out.setdefault(connection.topic, []).append(
+                reader.deserialize(raw, connection.msgtype))
+    return out
+
+
+def check_bag(bag: Path, offline) -> None:
+    """The bag holds exactly EPISODES copies of the offline episode."""
+    problem = load_problem('acrobot')
+    layout = JointStateLayout(problem)
+    steps = offline.steps
+    got = bag_messages(bag)
+    events = [json.loads(m.data) for m in got['/episode_event']]
+    assert [(e['event'], e['episode']) for e in events] == [
+        (kind, n) for n in range(1, EPISODES + 1) for kind in ('start', 'goal')]
+    for end in events[1::2]:
+        assert (end['return'], end['step'], end['delta_star']) == (
+            offline.ret, steps, offline.delta_star)
+    assert [m.data for m in got['/reward']] == list(offline.rewards) * EPISODES
+    first: dict[int, np.ndarray] = {}
+    for msg in got['/joint_states']:        # re-published states repeat their stamp
+        stamp = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+        state = layout.from_msg(msg)
+        assert np.array_equal(first.setdefault(stamp, state), state)
+    tick = round(problem.dt * problem.substeps * 1e9)
+    assert sorted(first) == [k * tick for k in range(EPISODES * (steps + 1))]
+    states = np.array([first[t] for t in sorted(first)])
+    assert np.array_equal(states, np.vstack([offline.states] * EPISODES))
+    commands = [m.data for m in got['/command']]
+    exemplars = [m.data for m in got['/exemplar_index']]
+    # one command per state: each step's, then the one answering the final state (which
+    # restarts the episode; the last episode's may come after the launch stopped)
+    assert len(commands) in (EPISODES * (steps + 1) - 1, EPISODES * (steps + 1))
+    assert len(exemplars) == len(commands)
+    for n in range(EPISODES):
+        span = slice(n * (steps + 1), n * (steps + 1) + steps)
+        assert commands[span] == list(offline.actions)
+        assert exemplars[span] == list(offline.exemplars)
+
+
+def test_ten_lockstep_launches_record_every_message_exactly(tmp_path, policy_file):
+    """10 x `sapga launch swingup --episodes 3`: every bag is whole and exact."""
+    path, offline = policy_file
+    assert offline.reached and offline.steps == 62
+    for run in range(RUNS):
+        done = launch(['swingup', '--policy', str(path), '--out', f'run{run}', '--episodes',
+                       str(EPISODES)], tmp_path)
+        assert 'every lockstep episode is equal' in done.stdout, done.stdout[-3000:]
+        assert 'incomplete' not in done.stdout
+        try:
+            check_bag(the_bag(tmp_path / f'run{run}'), offline)
+        except AssertionError as exc:
+            raise AssertionError(f'run {run}: {exc}\n{done.stdout[-3000:]}') from exc
+
+
+def test_a_launch_whose_bag_is_incomplete_exits_1():
+    """The swingup report fails (exit 1, the reason printed) when the bag lacks messages,
+    even though every episode equals the offline one."""
+    from sapga_ros.launch import Supervisor
+    from sapga_ros.launch.swingup import SwingupResult, print_swingup
+
+    end = {'event': 'goal', 'episode': 1, 'step': 3, 'return': -3.0, 'delta_star': 0.1}
+    offline = {'return': -3.0, 'delta_star': 0.1, 'steps': 3, 'reached': True}
+    whole = SwingupResult([end], [], offline, True)
+    lacking = SwingupResult([end], [], offline, True, 'the recording b is incomplete: ...')
+    assert print_swingup(Supervisor(), whole) == 0
+    assert print_swingup(Supervisor(), lacking) == 1
+
+
+@pytest.fixture
+def ros_context():
+    domain = free_domain_id()
+    saved = {k: os.environ.get(k) for k in ('ROS_AUTOMATIC_DISCOVERY_RANGE', 'ROS_DOMAIN_ID')}
+    os.environ.update(ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', ROS_DOMAIN_ID=str(domain))
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=domain)
+    yield ctx
+    rclpy.try_shutdown(context=ctx)
+    for k, v in saved.items():
+        if v is None:
+            os.environ.pop(k, None)
+        else:
+            os.environ[k] = v
+
+
+def wait(condition, what: str, timeout: float = 20.0) -> None:
+    deadline = time.monotonic() + timeout
+    while not condition():
+        assert time.monotonic() < deadline, f'timed out waiting for {what}'
+        time.sleep(0.02)
+
+
+def test_a_nested_episode_event_does_not_kill_the_launchers_ros_thread(ros_context):
+    """'[' * 100000 + ']' * 100000 on episode_event is no event; the launcher's ROS thread
+    goes on and hears the next real one."""
+    from sapga_ros.launch.swingup import LaunchRos
+
+    ros = LaunchRos(load_problem('acrobot'))
+    node = Node('hostile_publisher', context=ros_context)
+    pub = node.create_publisher(String, 'episode_event', EVENT_QOS)
+    try:
+        wait(lambda: pub.get_subscription_count() >= 1, 'the launcher to subscribe')
+        pub.publish(String(data='[' * 100_000 + ']' * 100_000))
+        pub.publish(String(data=json.dumps({'event': 'goal', 'episode': 1, 'step': 3})))
+        wait(lambda: ros.node.end_events(), 'the real event after the hostile one')
+        assert ros.node.end_events() == [{'event': 'goal', 'episode': 1, 'step': 3}]
+        assert ros._thread.is_alive()
+    finally:
+        node.destroy_node()
+        ros.close()
+
+
+def test_a_raising_callback_is_logged_in_one_line_and_the_node_goes_on(ros_context, capfd):
+    """spin_guarded (every node's spin): a callback that raises is one error line; the other
+    callbacks keep running."""
+    node = Node('fragile', context=ros_context)
+    ticks = []
+
+    def boom() -> None:
+        raise ValueError('boom\nsecond line')
+
+    node.create_timer(0.01, boom)
+    node.create_timer(0.01, lambda: ticks.append(1))
+    executor = SingleThreadedExecutor(context=ros_context)
+    executor.add_node(node)
+    spinner = threading.Thread(target=spin_guarded, args=(executor, node.get_logger()),
+                               daemon=True)
+    spinner.start()
+    wait(lambda: len(ticks) >= 20, 'the healthy timer to tick on')
+    assert spinner.is_alive()
+    executor.shutdown()
+    node.destroy_node()
+    err = capfd.readouterr().err
+    failures = [line for line in err.splitlines() if 'callback failed' in line]
+    assert failures and all(line.endswith('ValueError: boom second line') for line in failures)
+
+
+def test_a_sim_waiting_for_a_missing_recorder_stops_with_one_line(tmp_path):
+    """wait_for_recorder names a recorder that never answers: after recorder_timeout the sim
+    exits 1 with one line saying so; no episode started, no traceback."""
+    env = dict(os.environ, ROS_DOMAIN_ID=str(free_domain_id()),
+               ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+    done = subprocess.run([str(executable('acrobot_sim')), '--ros-args', '-p',
+                           'mode:=lockstep', '-p', 'wait_for_recorder:=recorder', '-p',
+                           'recorder_timeout:=2.0'], env=env, capture_output=True, text=True,
+                          timeout=60)
+    errors = [line for line in done.stderr.splitlines() if line.startswith('error: ')]
+    assert done.returncode == 1 and 'Traceback' not in done.stderr, done.stderr
+    assert len(errors) == 1 and "recorder 'recorder' not ready after 2 s" in errors[0]
