@@ -109,6 +109,8 @@ class Problem:
     ql_tiles_per_dim: int
     ql_epsilon: float
     ql_eta: float
+    reward_range: tuple[float, float] | None = None  # one MDP step's reward [low, high]
+    via_point_radius: float = 0.3               # normalised distance reaching a via-point
     ros: dict[str, Any] = field(default_factory=dict, compare=False)
     source: str = ''
 
@@ -148,6 +150,15 @@ class Problem:
     @property
     def action_values(self) -> np.ndarray:
         return np.array(self.actions, dtype=np.float64)
+
+    @property
+    def return_range(self) -> tuple[float, float]:
+        """[low, high] of an episode's accumulated reward (1 to n_step steps)."""
+        if self.reward_range is None:
+            raise ConfigError(f'{self.source}: episode.reward_range is not set; the value '
+                              'styles need it')
+        low, high = self.reward_range
+        return min(low, self.n_step * low), max(high, self.n_step * high)
 
     @property
     def joints(self) -> tuple[str, ...]:
@@ -240,6 +251,12 @@ def parse_problem(doc: Any, source: str) -> Problem:
     goal = _mapping(doc, 'goal', source)
     ql = _mapping(doc, 'q_learning', source, optional=True)
     ros = _mapping(doc, 'ros', source, optional=True)
+    styles = _mapping(doc, 'exemplars', source, optional=True)
+    reward_range = None
+    if episode.get('reward_range') is not None:
+        reward_range = _numbers(episode['reward_range'], f'{source}: episode.reward_range', 2)
+        if reward_range[0] > reward_range[1]:
+            raise ConfigError(f'{source}: episode.reward_range: needs low <= high')
     actuator = _mapping(doc, 'actuator', source, optional=True)
     model = _require(doc, 'model', source)
     from sim_nodes.models import MODELS
@@ -275,9 +292,14 @@ def parse_problem(doc: Any, source: str) -> Problem:
                                   f'{source}: q_learning.tiles_per_dim', 1),
         ql_epsilon=parse_number(ql.get('epsilon', 0.02), f'{source}: q_learning.epsilon'),
         ql_eta=parse_number(ql.get('eta', 0.02), f'{source}: q_learning.eta'),
+        reward_range=reward_range,
+        via_point_radius=parse_number(styles.get('via_point_radius', 0.3),
+                                      f'{source}: exemplars.via_point_radius'),
         ros=ros, source=source)
     if problem.dt <= 0 or problem.default_delta < 0:
         raise ConfigError(f'{source}: episode: needs dt > 0 and delta >= 0')
+    if not problem.via_point_radius > 0:
+        raise ConfigError(f'{source}: exemplars.via_point_radius: needs a number > 0')
     problem.params()  # the model checks its own physics parameters
     return problem
 

@@ -20,7 +20,8 @@ def rng():
 
 def test_random_exemplars_lie_within_bounds(problem, rng):
     """Initial exemplar states are uniform over the state bounds, actions over the set."""
-    states, actions = random_exemplars(problem, 5000, rng)
+    fresh = random_exemplars(problem, 5000, rng)
+    states, actions = fresh.states, fresh.actions
     assert np.all(states >= problem.low) and np.all(states < problem.high)
     assert set(np.unique(actions)) == set(range(len(problem.actions)))
     # uniform: each coordinate's mean is near the middle of its bounds
@@ -37,10 +38,12 @@ def test_initial_sizes_are_uniform_in_range(problem, rng):
 
 def test_deduplicate_keeps_first_occurrences_in_order(problem, rng):
     """Identical (state, action) pairs are removed; the first of each stays, in order."""
-    states, actions = random_exemplars(problem, 10, rng)
+    fresh = random_exemplars(problem, 10, rng)
+    states, actions = fresh.states, fresh.actions
     s = np.concatenate([states, states[[3, 0]], states[[5]]])
     a = np.concatenate([actions, actions[[3, 0]], (actions[[5]] + 1) % 3])
-    ds, da = deduplicate(s, a)
+    dedup = deduplicate(ExemplarPolicy(problem, s, a))
+    ds, da = dedup.states, dedup.actions
     assert len(da) == 11  # 10 + the one whose action differs
     np.testing.assert_array_equal(ds[:10], states)
     np.testing.assert_array_equal(da[:10], actions)

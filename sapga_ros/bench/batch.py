@@ -14,7 +14,6 @@ import numpy as np
 
 from sapga_ros.evaluation.evaluator import Evaluator, set_jobs
 from sapga_ros.optim.operators import random_exemplars
-from sapga_ros.exemplars.policy import ExemplarPolicy
 from sim_nodes import reference
 from sim_nodes.problem import load_problem
 
@@ -24,7 +23,7 @@ def bench_problem(name: str, policies: int = 500, exemplars: int = 100, seed: in
     """Speed figures of one problem."""
     problem = load_problem(name)
     rng = np.random.default_rng(seed)
-    pols = [ExemplarPolicy(problem, *random_exemplars(problem, exemplars, rng))
+    pols = [random_exemplars(problem, exemplars, rng)
             for _ in range(policies)]
     evaluator = Evaluator(problem, delta=0.0)  # delta 0: every episode runs 400 steps
     evaluator.evaluate(pols[:2])               # compile outside the timing

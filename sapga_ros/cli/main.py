@@ -27,6 +27,7 @@ from pathlib import Path
 from sapga_ros.cli.recordings import (add_bag_arguments, add_inspect_arguments, cmd_bag,
                                       cmd_inspect)
 from sapga_ros.errors import SapgaError
+from sapga_ros.exemplars.styles import STYLES
 
 EXIT_USAGE = 2
 
@@ -81,6 +82,9 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument('--init', action='append', default=[], metavar='FILE',
                    help='policy file of hand-written exemplars to seed the population '
                         '(repeatable; SAP-GA only)')
+    t.add_argument('--style', choices=tuple(STYLES), default='state-action',
+                   help='exemplar style of a SAP-GA run (default state-action): '
+                        + '; '.join(f'{s.name}: {s.summary}' for s in STYLES.values()))
     t.add_argument('--pop', type=_positive_int, default=100, help='N_pop (default 100)')
     t.add_argument('--children', type=_positive_int, default=10, help='N_child (default 10)')
     t.add_argument('--l-min', type=_positive_int, default=50, help='L_min (default 50)')
@@ -190,11 +194,16 @@ def cmd_train(args) -> int:
     initial = [load_policy(f, problem) for f in args.init]
     if initial and args.method != 'sapga':
         raise SapgaError('--init seeds a SAP-GA population; Q-learning takes none')
+    for f, policy in zip(args.init, initial):
+        if policy.style != args.style:
+            raise SapgaError(f'{f}: a {policy.style} policy cannot seed a {args.style} run '
+                             f'(--style {policy.style})')
     config = TrainConfig(problem=problem.name, method=args.method, delta=args.delta,
                          steps=args.steps, seed=args.seed, jobs=args.jobs,
                          checkpoint=args.checkpoint, resume=args.resume,
                          params=SapgaParams(n_pop=args.pop, n_child=args.children,
-                                            l_min=args.l_min, l_max=args.l_max))
+                                            l_min=args.l_min, l_max=args.l_max,
+                                            style=args.style))
     out = Path(args.out) if args.out else _default_out(args)
     check_output_file(out, '--out')
     if args.checkpoint and Path(args.checkpoint).exists() and not Path(args.checkpoint).is_dir():
@@ -257,32 +266,31 @@ def cmd_exemplars(args) -> int:
     from sapga_ros.evaluation.any_policy import run_policy_episode
     import numpy as np
 
-    from sapga_ros.exemplars.tools import exemplar_table, plot_exemplars
-    from sapga_ros.exemplars.policy import ExemplarPolicy, load_policy
+    from sapga_ros.exemplars.tools import exemplar_table, format_table
+    from sapga_ros.exemplars.policy import load_policy
     policy = load_policy(args.policy)
     delta = _eval_delta(args, policy)
     ep = run_policy_episode(policy, delta)
-    counts = np.bincount(ep.exemplars, minlength=len(policy))
-    rows = exemplar_table(policy, counts)
+    reported = ep.exemplars[ep.exemplars >= 0]
+    counts = np.bincount(reported, minlength=len(policy))
+    rows = exemplar_table(policy, counts, ep.used)
     if args.json:
         print(json.dumps(rows))
     else:
-        names = policy.problem.state_names
-        print(f"{'#':>4} {'uses':>5} {'action':>7}  " + ' '.join(f'{n:>11}' for n in names))
-        for r in rows:
-            print(f"{r['index']:>4} {r['uses']:>5} {r['action']:>7g}  "
-                  + ' '.join(f'{v:>11.4f}' for v in r['state']))
-        print(f'{int((counts > 0).sum())} of {len(policy)} exemplars referred to in its '
+        print(f'{policy.problem.name}, {policy.style} style')
+        print('\n'.join(format_table(policy, rows)))
+        print(f'{int(ep.used.sum())} of {len(policy)} exemplars referred to in its '
               f'episode of {ep.steps} steps')
     if args.plot:
+        from sapga_ros.viz.exemplar_plot import plot_exemplars
         check_output_file(Path(args.plot), '--plot')
         plot_exemplars(policy, ep, counts, args.plot)
         print(f'plot: {args.plot}', file=sys.stderr)
     if args.prune_unused:
         check_output_file(Path(args.prune_unused), '--prune-unused')
-        keep = counts > 0
-        pruned = ExemplarPolicy(policy.problem, policy.states[keep], policy.actions[keep],
-                                meta={**policy.meta, 'pruned_from': str(args.policy)})
+        keep = ep.used
+        pruned = policy.subset(keep)
+        pruned.meta = {**policy.meta, 'pruned_from': str(args.policy)}
         pruned.save(args.prune_unused)
         print(f'pruned policy ({int(keep.sum())} exemplars): {args.prune_unused}',
               file=sys.stderr)

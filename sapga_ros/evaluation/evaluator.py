@@ -11,9 +11,12 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from sapga_ros.evaluation.engine import BLOCKS_PER_THREAD, episode_kernels
-from sapga_ros.exemplars.policy import ExemplarPolicy
+from sapga_ros.errors import SapgaError
+from sapga_ros.evaluation.engine import BLOCKS_PER_THREAD, evaluate_batch, run_share
 from sapga_ros.exemplars.distance import normalize_states
+from sapga_ros.exemplars.policy import ExemplarPolicy
+from sapga_ros.exemplars.styles import STYLES
+from sim_nodes.models import model_id
 from sim_nodes.goal import goal_arrays
 from sim_nodes.problem import Problem
 
@@ -35,12 +38,13 @@ class Episode:
 
     states: np.ndarray      # (steps + 1, D), initial state first
     actions: np.ndarray     # (steps,) action values
-    exemplars: np.ndarray   # (steps,) index of the exemplar used
+    exemplars: np.ndarray   # (steps,) index of the exemplar the selector reported (-1: none)
     rewards: np.ndarray     # (steps,)
     ret: float
     steps: int
     delta_star: float
     reached: bool
+    used: np.ndarray | None = None  # (L,) exemplars referred to (exemplar policies)
 
     def summary(self) -> dict:
         return {'return': self.ret, 'delta_star': self.delta_star, 'steps': self.steps,
@@ -56,42 +60,58 @@ def set_jobs(jobs: int | None) -> int:
 
 
 class Evaluator:
-    """Evaluates exemplar policies of one problem with goal difficulty ``delta``."""
+    """Evaluates exemplar policies (of any style) of one problem with goal difficulty
+    ``delta``."""
 
     def __init__(self, problem: Problem, delta: float | None = None,
                  n_step: int | None = None) -> None:
         self.problem = problem
         self.delta = float(problem.default_delta if delta is None else delta)
         self.n_step = int(problem.n_step if n_step is None else n_step)
-        self.kernels = episode_kernels(problem.model)
+        self.model = model_id(problem.model)
         self.params = problem.params()
         self.ranges = problem.ranges
         self.inv_range = 1.0 / self.ranges
         self.is_angle = problem.is_angle
         self.goal = goal_arrays(problem)
         self.s0 = problem.initial_state
+        self.actions = problem.action_values
+        self.radius2 = problem.via_point_radius ** 2
+        self.goal_u = normalize_states(problem.best_state[None, :], self.ranges,
+                                       self.is_angle)[:, 0].copy()
 
     def _consts(self):
         return (self.s0, self.params, self.inv_range, self.is_angle, *self.goal, self.delta,
-                self.n_step)
+                self.n_step, self.actions, self.radius2, self.goal_u)
 
     def pack(self, policies: list[ExemplarPolicy]):
-        """Padded (P, D, Lmax) normalised states, (P, Lmax) action values, (P,) lengths."""
+        """(style number, ex, ex2, act, val, lengths): padded (P, D, Lmax) normalised
+        states, (P, D, Lmax or 1) second states, (P, Lmax) action values and values, (P,)
+        lengths."""
+        styles = {p.style for p in policies}
+        if len(styles) > 1:
+            raise SapgaError(f'one batch holds one exemplar style, got {sorted(styles)}')
+        style = STYLES[styles.pop() if styles else 'state-action']
         lengths = np.array([len(p) for p in policies], dtype=np.int64)
         lmax = int(lengths.max()) if len(policies) else 1
         dim = self.problem.dim
         ex = np.zeros((len(policies), dim, lmax))
+        ex2 = np.zeros((len(policies), dim, lmax if style.uses('state2') else 1))
         act = np.zeros((len(policies), lmax))
-        values = self.problem.action_values
+        val = np.zeros((len(policies), lmax))
+        values = self.actions
         for k, p in enumerate(policies):
             ex[k, :, :len(p)] = normalize_states(p.states, self.ranges, self.is_angle)
+            if style.uses('state2'):
+                ex2[k, :, :len(p)] = normalize_states(p.states2, self.ranges, self.is_angle)
             act[k, :len(p)] = values[p.actions]
-        return ex, act, lengths
+            val[k, :len(p)] = p.values
+        return style.number, ex, ex2, act, val, lengths
 
     def evaluate(self, policies: list[ExemplarPolicy]) -> BatchResult:
         """Evaluate every policy once (in parallel on the configured threads)."""
         count = len(policies)
-        ex, act, lengths = self.pack(policies)
+        style, ex, ex2, act, val, lengths = self.pack(policies)
         returns = np.empty(count)
         steps = np.empty(count, dtype=np.int64)
         dstar = np.empty(count)
@@ -99,20 +119,25 @@ class Evaluator:
         used = np.zeros(act.shape, dtype=np.bool_)
         if count:
             shares = max(1, min(count, numba.get_num_threads() * BLOCKS_PER_THREAD))
-            self.kernels.evaluate_batch(ex, act, lengths, *self._consts(), shares, returns,
-                                        steps, dstar, reached, used)
+            evaluate_batch(self.model, style, ex, ex2, act, val, lengths, *self._consts(),
+                           shares, returns, steps, dstar, reached, used)
         return BatchResult(returns, steps, dstar, reached,
                            [used[k, :n].copy() for k, n in enumerate(lengths)])
 
     def episode(self, policy: ExemplarPolicy) -> Episode:
         """Run ``policy`` once from the initial state and record the trajectory."""
-        ex, act, lengths = self.pack([policy])
-        used = np.zeros(len(policy), dtype=np.bool_)
+        style, ex, ex2, act, val, lengths = self.pack([policy])
+        returns, dstar = np.zeros(1), np.zeros(1)
+        steps = np.zeros(1, dtype=np.int64)
+        reached = np.zeros(1, dtype=np.bool_)
+        used = np.zeros(act.shape, dtype=np.bool_)
         tr_state = np.zeros((self.n_step + 1, self.problem.dim))
         tr_idx = np.zeros(self.n_step, dtype=np.int64)
+        tr_act = np.zeros(self.n_step)
         tr_reward = np.zeros(self.n_step)
-        ret, steps, dstar, reached = self.kernels.episode(
-            ex[0], act[0], lengths[0], *self._consts(), used, tr_state, tr_idx, tr_reward)
-        idx = tr_idx[:steps].copy()
-        return Episode(tr_state[:steps + 1].copy(), act[0][idx], idx, tr_reward[:steps].copy(),
-                       float(ret), int(steps), float(dstar), bool(reached))
+        run_share(self.model, style, ex, ex2, act, val, lengths, 0, 1, *self._consts(),
+                  returns, steps, dstar, reached, used, tr_state, tr_idx, tr_act, tr_reward)
+        n = int(steps[0])
+        return Episode(tr_state[:n + 1].copy(), tr_act[:n].copy(), tr_idx[:n].copy(),
+                       tr_reward[:n].copy(), float(returns[0]), n, float(dstar[0]),
+                       bool(reached[0]), used[0, :len(policy)].copy())

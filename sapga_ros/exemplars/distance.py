@@ -29,11 +29,8 @@ def normalize_into(s, inv_range, is_angle, out):
 
 
 @kernel
-def nearest(u, ex, n, is_angle, acc):
-    """Index of the exemplar nearest to the normalised state u among ex[:, :n].
-
-    ``acc`` is scratch of length >= n (squared distances).
-    """
+def sq_distances(u, ex, n, is_angle, acc):
+    """acc[j] = squared normalised distance from u to exemplar j of ex[:, :n]."""
     for j in range(n):
         acc[j] = 0.0
     for d in range(u.shape[0]):
@@ -48,6 +45,28 @@ def nearest(u, ex, n, is_angle, acc):
             for j in range(n):
                 diff = ud - row[j]
                 acc[j] += diff * diff
+
+
+@kernel
+def sq_distance(u, v, is_angle):
+    """Squared normalised distance between two normalised states."""
+    total = 0.0
+    for d in range(u.shape[0]):
+        diff = u[d] - v[d]
+        if is_angle[d]:
+            diff = math.fabs(diff)
+            diff = min(diff, 1.0 - diff)
+        total += diff * diff
+    return total
+
+
+@kernel
+def nearest(u, ex, n, is_angle, acc):
+    """Index of the exemplar nearest to the normalised state u among ex[:, :n].
+
+    ``acc`` is scratch of length >= n (squared distances).
+    """
+    sq_distances(u, ex, n, is_angle, acc)
     best = 0
     best_d = acc[0]
     for j in range(1, n):

@@ -1,8 +1,10 @@
 """Exemplar policies and the public policy file format (SPEC 3.1, 3.3).
 
-A state-action policy is a set of exemplars (s_j, a_j) plus the nearest-neighbour selector.
-In memory: ``states`` (L, D) raw float64 with angles wrapped to [0, 2pi), and ``actions``
-(L,) integer indices into the problem's action set.  On disk: a UTF-8 JSON document
+A policy is a set of exemplar records plus the action selector of its ``style``
+(``sapga_ros.exemplars.styles``).  In memory, one row per exemplar: ``states`` (L, D) raw
+float64 with angles wrapped to [0, 2pi), ``states2`` (L, D) for state-state (else (L, 0)),
+``actions`` (L,) integer indices into the problem's action set and ``values`` (L,) (zeros
+where the style has none).  On disk: a UTF-8 JSON document
 ``sapga-policy/1`` that a person can read, diff and edit.  Loading parses (never
 evaluates), refuses NaN/Infinity literals, oversized files and every inconsistency with the
 problem's configuration, naming the field that is wrong.
@@ -19,54 +21,106 @@ from typing import Any
 import numpy as np
 
 from sapga_ros.errors import PolicyFileError, SapgaError
+from sapga_ros.exemplars.styles import STYLES, style_named
 from sapga_ros.io.atomic import write_atomic
 from sim_nodes.problem import Problem, load_problem
 
 FORMAT = 'sapga-policy/1'
-STYLES = ('state-action',)
 MAX_POLICY_BYTES = 64 * 1024 * 1024  # a Q-learning export of 20^4 tiles is ~15 MB
 
 
 @dataclass
 class ExemplarPolicy:
-    """A state-action exemplar policy of one problem."""
+    """An exemplar policy of one problem, in one style."""
 
     problem: Problem
     states: np.ndarray                       # (L, D) float64, angles in [0, 2pi)
-    actions: np.ndarray                      # (L,) int64 indices into problem.actions
+    actions: np.ndarray | None = None        # (L,) int64 indices into problem.actions
     meta: dict[str, Any] = field(default_factory=dict)
     style: str = 'state-action'
+    values: np.ndarray | None = None         # (L,) float64
+    states2: np.ndarray | None = None        # (L, D) float64 (state-state), else (L, 0)
 
     def __post_init__(self) -> None:
-        self.states = np.ascontiguousarray(self.states, dtype=np.float64).reshape(
-            -1, self.problem.dim)
-        self.actions = np.ascontiguousarray(self.actions, dtype=np.int64).reshape(-1)
-        if len(self.states) != len(self.actions):
-            raise SapgaError(f'policy has {len(self.states)} states but {len(self.actions)} '
-                             'actions')
+        spec = style_named(self.style)
+        dim = self.problem.dim
+        self.states = self._wrapped(self.states)
+        count = len(self.states)
+        self.actions = np.ascontiguousarray(
+            np.zeros(count) if self.actions is None else self.actions,
+            dtype=np.int64).reshape(-1)
+        self.values = np.ascontiguousarray(
+            np.zeros(count) if self.values is None else self.values,
+            dtype=np.float64).reshape(-1)
+        if spec.uses('state2'):
+            if self.states2 is None:
+                raise SapgaError(f'a {self.style} policy needs second states')
+            self.states2 = self._wrapped(self.states2)
+        else:
+            self.states2 = np.zeros((count, 0))
+        for name, arr in (('actions', self.actions), ('values', self.values),
+                          ('second states', self.states2)):
+            if len(arr) != count:
+                raise SapgaError(f'policy has {count} states but {len(arr)} {name}')
+        if dim and self.states2.shape[1] not in (0, dim):
+            raise SapgaError(f'second states have {self.states2.shape[1]} coordinates')
+
+    def _wrapped(self, states) -> np.ndarray:
+        states = np.ascontiguousarray(states, dtype=np.float64).reshape(-1, self.problem.dim)
         angle = self.problem.is_angle
-        self.states[:, angle] = np.mod(self.states[:, angle], 2 * math.pi)
-        self.states[:, angle] = np.where(self.states[:, angle] >= 2 * math.pi, 0.0,
-                                         self.states[:, angle])
+        states[:, angle] = np.mod(states[:, angle], 2 * math.pi)
+        states[:, angle] = np.where(states[:, angle] >= 2 * math.pi, 0.0, states[:, angle])
+        return states
 
     def __len__(self) -> int:
-        return len(self.actions)
+        return len(self.states)
 
     @property
     def action_values(self) -> np.ndarray:
         return self.problem.action_values[self.actions]
 
+    def subset(self, index) -> ExemplarPolicy:
+        """The policy of the exemplars ``index`` (a mask or indices), in that order."""
+        return ExemplarPolicy(self.problem, self.states[index], self.actions[index],
+                              style=self.style, values=self.values[index],
+                              states2=self.states2[index])
+
+    def records(self) -> np.ndarray:
+        """(L, K) float64: each exemplar's record, every field the style uses, in a row."""
+        spec = STYLES[self.style]
+        cols = [self.states]
+        if spec.uses('state2'):
+            cols.append(self.states2)
+        if spec.uses('action'):
+            cols.append(self.actions.astype(np.float64)[:, None])
+        if spec.uses('value'):
+            cols.append(self.values[:, None])
+        return np.ascontiguousarray(np.column_stack(cols))
+
+    def exemplar_document(self, j: int) -> dict[str, Any]:
+        """Exemplar j as it is written in a policy file."""
+        keys = STYLES[self.style].keys
+        doc: dict[str, Any] = {}
+        for name, key in keys.items():
+            if name == 'state':
+                doc[key] = [float(x) for x in self.states[j]]
+            elif name == 'state2':
+                doc[key] = [float(x) for x in self.states2[j]]
+            elif name == 'action':
+                doc[key] = self.problem.actions[self.actions[j]]
+            else:
+                doc[key] = float(self.values[j])
+        return doc
+
     def to_document(self) -> dict[str, Any]:
         """The JSON document of SPEC 3.3."""
-        values = self.problem.actions
         return {
             'format': FORMAT,
             'problem': self.problem.name,
             'style': self.style,
             'state_names': list(self.problem.state_names),
-            'actions': list(values),
-            'exemplars': [{'state': [float(x) for x in s], 'action': values[a]}
-                          for s, a in zip(self.states, self.actions)],
+            'actions': list(self.problem.actions),
+            'exemplars': [self.exemplar_document(j) for j in range(len(self))],
             'meta': json_safe(self.meta),
         }
 
@@ -85,6 +139,15 @@ class ExemplarPolicy:
             raise SapgaError(f'{path}: exists; refusing to overwrite')
         write_atomic(path, self.to_json())
         return path
+
+
+def concat_policies(parts: list[ExemplarPolicy]) -> ExemplarPolicy:
+    """One policy of every exemplar of ``parts`` (same problem and style), in order."""
+    first = parts[0]
+    return ExemplarPolicy(first.problem, np.concatenate([p.states for p in parts]),
+                          np.concatenate([p.actions for p in parts]), style=first.style,
+                          values=np.concatenate([p.values for p in parts]),
+                          states2=np.concatenate([p.states2 for p in parts]))
 
 
 def _reject_constant(name: str) -> float:
@@ -157,9 +220,10 @@ def policy_from_document(doc: Any, problem: str | Problem | None = None,
         if prob.name != want:
             raise PolicyFileError(f'{source}: problem: policy is for {prob.name!r}, '
                                   f'expected {want!r}')
-    if doc['style'] not in STYLES:
+    if not isinstance(doc['style'], str) or doc['style'] not in STYLES:
         raise PolicyFileError(f'{source}: style: {excerpt(doc["style"])} is not supported '
                               f'(supported: {", ".join(STYLES)})')
+    spec = STYLES[doc['style']]
     if doc['state_names'] != list(prob.state_names):
         raise PolicyFileError(f'{source}: state_names: expected {list(prob.state_names)}, '
                               f'got {doc["state_names"]!r}'[:300])
@@ -174,29 +238,46 @@ def policy_from_document(doc: Any, problem: str | Problem | None = None,
     if not isinstance(exemplars, list) or not exemplars:
         raise PolicyFileError(f'{source}: exemplars: expected a non-empty list')
     dim = prob.dim
-    states = np.empty((len(exemplars), dim))
-    acts = np.empty(len(exemplars), dtype=np.int64)
+    count = len(exemplars)
+    states, states2 = np.empty((count, dim)), np.empty((count, dim))
+    acts = np.zeros(count, dtype=np.int64)
+    vals = np.zeros(count)
     index = {v: i for i, v in enumerate(values)}
+    keys = spec.keys
     for j, e in enumerate(exemplars):
         where = f'{source}: exemplars[{j}]'
-        if not isinstance(e, dict) or 'state' not in e or 'action' not in e:
-            raise PolicyFileError(f'{where}: expected an object with "state" and "action"')
-        st = e['state']
-        if not isinstance(st, list) or len(st) != dim:
-            got = len(st) if isinstance(st, list) else type(st).__name__
-            raise PolicyFileError(f'{where}.state: expected {dim} numbers '
-                                  f'({", ".join(prob.state_names)}), got {got}')
-        for d, x in enumerate(st):
-            states[j, d] = _finite(x, f'{where}.state[{d}] ({prob.state_names[d]})')
-        a = _finite(e['action'], f'{where}.action')
-        if a not in index:
-            raise PolicyFileError(f'{where}.action: {a} is not one of {values}')
-        acts[j] = index[a]
+        if not isinstance(e, dict) or any(k not in e for k in keys.values()):
+            wanted = ', '.join(f'"{k}"' for k in keys.values())
+            raise PolicyFileError(f'{where}: expected an object with {wanted} '
+                                  f'({spec.name} style)')
+        for name, key in keys.items():
+            if name in ('state', 'state2'):
+                _read_state(e[key], f'{where}.{key}', prob,
+                            states[j] if name == 'state' else states2[j])
+            elif name == 'action':
+                a = _finite(e[key], f'{where}.{key}')
+                if a not in index:
+                    raise PolicyFileError(f'{where}.{key}: {a} is not one of {values}')
+                acts[j] = index[a]
+            else:
+                vals[j] = _finite(e[key], f'{where}.{key}')
     meta = doc.get('meta', {})
     if not isinstance(meta, dict):
         raise PolicyFileError(f'{source}: meta: expected an object')
     _check_finite_tree(meta, f'{source}: meta')
-    return ExemplarPolicy(prob, states, acts, meta=meta, style=doc['style'])
+    return ExemplarPolicy(prob, states, acts, meta=meta, style=spec.name, values=vals,
+                          states2=states2 if spec.uses('state2') else None)
+
+
+def _read_state(st: Any, where: str, prob: Problem, out: np.ndarray) -> None:
+    """Validate one state list of a policy file into ``out``."""
+    dim = prob.dim
+    if not isinstance(st, list) or len(st) != dim:
+        got = len(st) if isinstance(st, list) else type(st).__name__
+        raise PolicyFileError(f'{where}: expected {dim} numbers '
+                              f'({", ".join(prob.state_names)}), got {got}')
+    for d, x in enumerate(st):
+        out[d] = _finite(x, f'{where}[{d}] ({prob.state_names[d]})')
 
 
 def policy_from_json(text: str | bytes, problem: str | Problem | None = None,

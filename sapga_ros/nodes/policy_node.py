@@ -1,10 +1,12 @@
-"""Policy node: the exemplar nearest-neighbour selector behind the topic contract (SPEC 4).
+"""Policy node: an exemplar policy of any style behind the topic contract (SPEC 4).
 
-Subscribes to the state (``sensor_msgs/JointState``), selects the nearest exemplar with the
-same compiled functions and normalisation as ``Evaluator`` (``normalize_states`` for the
-exemplars, ``normalize_into`` + ``nearest`` for the state), and publishes the exemplar's
-action on ``command`` and its index on ``exemplar_index``.  Each distinct state stamp is
-answered once, so the lockstep sim's re-publishes are harmless.
+Subscribes to the state (``sensor_msgs/JointState``), selects the action with the policy's
+style through the same compiled selector and packing as ``Evaluator``
+(``sapga_ros.evaluation.state_selector``), and publishes the action on ``command`` and the
+exemplar the selector reported on ``exemplar_index`` (-1: none, e.g. a via-point policy
+heading for the best state).  Each distinct state stamp is answered once, so the lockstep
+sim's re-publishes are harmless.  A via-point policy starts its list again whenever the
+state is the problem's initial state (every episode starts there).
 
 Parameters:
 
@@ -42,8 +44,8 @@ from std_srvs.srv import Trigger
 from sapga_ros.errors import ConfigError, SapgaError
 from sim_nodes.ros.common import (QUIET_PUBLISHER, THROTTLE_S, JointStateLayout, MessageError,
                                   qos_profile, run_node, stamp_ns, steady_clock, topic_names)
+from sapga_ros.evaluation.state_selector import StateSelector
 from sapga_ros.exemplars.policy import ExemplarPolicy, load_policy, policy_from_json
-from sapga_ros.exemplars.distance import nearest, normalize_into, normalize_states
 from sim_nodes.problem import Problem, load_problem
 
 POLL_S = 0.02  # [s] how often a pending load checks for the service and its deadline
@@ -54,18 +56,15 @@ class PreparedPolicy:
     """A validated policy in the selector's layout; never modified once made."""
 
     policy: ExemplarPolicy
-    exemplars: np.ndarray   # (D, L) normalised states, as Evaluator.pack makes them
-    values: np.ndarray      # (L,) action values
+    selector: StateSelector  # packed as Evaluator.pack packs it (its scratch changes)
     source: str             # where it came from (file path or service name)
 
     @classmethod
     def of(cls, policy: ExemplarPolicy, source: str) -> PreparedPolicy:
-        problem = policy.problem
-        return cls(policy, normalize_states(policy.states, problem.ranges, problem.is_angle),
-                   problem.action_values[policy.actions], source)
+        return cls(policy, StateSelector(policy), source)
 
     def __len__(self) -> int:
-        return len(self.values)
+        return len(self.policy)
 
 
 def check_setting(name: str, value: Any) -> str | None:
@@ -76,7 +75,7 @@ def check_setting(name: str, value: Any) -> str | None:
 
 
 class PolicyNode(Node):
-    """Answers each state with the nearest exemplar's action."""
+    """Answers each state with the action its policy selects."""
 
     def __init__(self, node_name: str = 'policy_node', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
@@ -92,11 +91,8 @@ class PolicyNode(Node):
 
         p = self.problem
         self._layout = JointStateLayout(p)
-        self._inv_range = 1.0 / p.ranges
-        self._is_angle = p.is_angle
         self._s = np.empty(p.dim)      # scratch: raw state
-        self._u = np.empty(p.dim)      # scratch: normalised state
-        self._acc = np.empty(1)        # scratch: squared distances
+        self._s0 = p.initial_state
         self.active: PreparedPolicy | None = None
         self._staged: dict[str, PreparedPolicy] = {}
         self._last_stamp: int | None = None
@@ -133,17 +129,16 @@ class PolicyNode(Node):
 
     # selection ------------------------------------------------------------------------------
 
-    def select(self, msg: JointState, prepared: PreparedPolicy) -> int:
-        """Index of ``prepared``'s exemplar nearest to the state in ``msg``.
+    def select(self, msg: JointState, prepared: PreparedPolicy) -> tuple[int, float]:
+        """(exemplar index reported, action value) of ``prepared`` for the state in ``msg``.
 
         Raises ``MessageError`` for a malformed state message.
         """
         s = self._layout.from_msg(msg, self._s)
-        normalize_into(s, self._inv_range, self._is_angle, self._u)
-        n = len(prepared)
-        if self._acc.shape[0] < n:
-            self._acc = np.empty(n)
-        return nearest(self._u, prepared.exemplars, n, self._is_angle, self._acc)
+        selector = prepared.selector
+        if selector.stateful and np.array_equal(s, self._s0):
+            selector.reset()  # an episode starts
+        return selector.select(s)
 
     def _on_state(self, msg: JointState) -> None:
         stamp = stamp_ns(msg)
@@ -157,7 +152,7 @@ class PolicyNode(Node):
                                       throttle_duration_sec=THROTTLE_S)
             return
         try:
-            j = self.select(msg, prepared)
+            j, action = self.select(msg, prepared)
         except MessageError as exc:
             self.rejected += 1
             self.get_logger().warning(f'skipping state message: {exc}',
@@ -165,7 +160,7 @@ class PolicyNode(Node):
             return
         self._last_stamp = stamp
         self.answered += 1
-        self._command_msg.data = float(prepared.values[j])
+        self._command_msg.data = action
         self._command_pub.publish(self._command_msg)
         self._index_msg.data = int(j)
         self._index_pub.publish(self._index_msg)
@@ -176,7 +171,8 @@ class PolicyNode(Node):
         self.active = prepared  # the atomic swap
         meta = prepared.policy.meta
         value = f', value {meta["value"]}' if 'value' in meta else ''
-        text = f'policy from {prepared.source}: {len(prepared)} exemplars{value}'
+        text = (f'policy from {prepared.source}: {len(prepared)} exemplars '
+                f'({prepared.policy.style}){value}')
         self.get_logger().info(text)
         return text
 

@@ -1,6 +1,7 @@
 """SAP-GA operators (paper section 3; SPEC 3.2) as pure functions of an explicit generator.
 
-* ``random_exemplars``: states uniform over the problem's bounds, actions uniform.
+* ``random_exemplars``: records of any style: states uniform over the problem's bounds,
+  actions uniform, values uniform over an episode's return range.
 * ``uniform_crossover``: each exemplar of parent 1 joins with probability r, each of parent 2
   with 1 - r (r drawn from [0.3, 0.7] per attempt); identical exemplars deduplicated; retried
   until the size is in [L_min, L_max], at most ``max_tries`` times, then *repaired*.
@@ -11,34 +12,45 @@ from __future__ import annotations
 
 import numpy as np
 
-from sapga_ros.exemplars.policy import ExemplarPolicy
+from sapga_ros.exemplars.policy import ExemplarPolicy, concat_policies
+from sapga_ros.exemplars.styles import style_named
 from sim_nodes.problem import Problem
 
 
-def random_exemplars(problem: Problem, count: int,
-                     rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """``count`` exemplars: states uniform over [low, high), action indices uniform."""
+def random_exemplars(problem: Problem, count: int, rng: np.random.Generator,
+                     style: str = 'state-action') -> ExemplarPolicy:
+    """``count`` random exemplar records of ``style`` (SPEC 3.1): states uniform over
+    [low, high), action indices uniform, values uniform over an episode's return range.
+    Drawn field by field in the order state, state2, action, value."""
+    spec = style_named(style)
     states = rng.uniform(problem.low, problem.high, size=(count, problem.dim))
-    actions = rng.integers(0, len(problem.actions), size=count)
-    return states, actions
+    states2 = actions = values = None
+    if spec.uses('state2'):
+        states2 = rng.uniform(problem.low, problem.high, size=(count, problem.dim))
+    if spec.uses('action'):
+        actions = rng.integers(0, len(problem.actions), size=count)
+    if spec.uses('value'):
+        values = rng.uniform(*problem.return_range, size=count)
+    return ExemplarPolicy(problem, states, actions, style=style, values=values,
+                          states2=states2)
 
 
 def random_policy(problem: Problem, rng: np.random.Generator, l_min: int,
-                  l_max: int) -> ExemplarPolicy:
+                  l_max: int, style: str = 'state-action') -> ExemplarPolicy:
     """An initial policy: size uniform in [l_min, l_max], random exemplars."""
     size = int(rng.integers(l_min, l_max + 1))
-    return ExemplarPolicy(problem, *random_exemplars(problem, size, rng))
+    return random_exemplars(problem, size, rng, style)
 
 
-def deduplicate(states: np.ndarray, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Drop exemplars identical (bit for bit) to an earlier one; keep first-seen order."""
-    rows = np.ascontiguousarray(np.column_stack([states, actions.astype(np.float64)]))
+def deduplicate(policy: ExemplarPolicy) -> ExemplarPolicy:
+    """Drop exemplars identical (bit for bit, every field) to an earlier one; keep order."""
+    rows = policy.records()
     keys = rows.view(np.dtype((np.void, rows.dtype.itemsize * rows.shape[1]))).ravel()
     _, first = np.unique(keys, return_index=True)
     if len(first) == len(rows):
-        return states, actions
+        return policy
     first.sort()
-    return states[first], actions[first]
+    return policy.subset(first)
 
 
 def uniform_crossover(p1: ExemplarPolicy, p2: ExemplarPolicy, rng: np.random.Generator,
@@ -51,27 +63,20 @@ def uniform_crossover(p1: ExemplarPolicy, p2: ExemplarPolicy, rng: np.random.Gen
     smaller than l_min.  (A converged population of near-identical parents of about l_min
     exemplars almost never yields a legal size; an unbounded retry would stall the run.)
     """
-    problem = p1.problem
     for _ in range(max_tries):
         r = rng.uniform(*rate)                                    # selection rate
         take1 = rng.random(len(p1)) < r                           # e in E^p1 with prob r
         take2 = rng.random(len(p2)) < 1.0 - r                     # e in E^p2 with prob 1 - r
-        states, actions = deduplicate(np.concatenate([p1.states[take1], p2.states[take2]]),
-                                      np.concatenate([p1.actions[take1], p2.actions[take2]]))
-        if l_min <= len(actions) <= l_max:
-            return ExemplarPolicy(problem, states, actions), False
-    states, actions = deduplicate(np.concatenate([p1.states, p2.states]),
-                                  np.concatenate([p1.actions, p2.actions]))
+        child = deduplicate(concat_policies([p1.subset(take1), p2.subset(take2)]))
+        if l_min <= len(child) <= l_max:
+            return child, False
+    union = deduplicate(concat_policies([p1, p2]))
     size = int(rng.integers(l_min, l_max + 1))
-    if len(actions) >= l_min:
-        size = min(size, len(actions))
-        keep = np.sort(rng.choice(len(actions), size=size, replace=False))
-        states, actions = states[keep], actions[keep]
-    else:
-        extra_s, extra_a = random_exemplars(problem, size - len(actions), rng)
-        states = np.concatenate([states, extra_s])
-        actions = np.concatenate([actions, extra_a])
-    return ExemplarPolicy(problem, states, actions), True
+    if len(union) >= l_min:
+        size = min(size, len(union))
+        return union.subset(np.sort(rng.choice(len(union), size=size, replace=False))), True
+    extra = random_exemplars(p1.problem, size - len(union), rng, p1.style)
+    return concat_policies([union, extra]), True
 
 
 def refresh(policy: ExemplarPolicy, used: np.ndarray, rng: np.random.Generator,
@@ -83,8 +88,13 @@ def refresh(policy: ExemplarPolicy, used: np.ndarray, rng: np.random.Generator,
     r = rng.uniform(*rate)                                        # refresh rate
     redraw = ~used & (rng.random(len(policy)) < r)                # lazy, with prob r
     count = int(redraw.sum())
-    states = policy.states.copy()
-    actions = policy.actions.copy()
+    clone = ExemplarPolicy(policy.problem, policy.states.copy(), policy.actions.copy(),
+                           style=policy.style, values=policy.values.copy(),
+                           states2=policy.states2.copy())
     if count:
-        states[redraw], actions[redraw] = random_exemplars(policy.problem, count, rng)
-    return ExemplarPolicy(policy.problem, states, actions), count
+        fresh = random_exemplars(policy.problem, count, rng, policy.style)
+        clone.states[redraw] = fresh.states
+        clone.states2[redraw] = fresh.states2
+        clone.actions[redraw] = fresh.actions
+        clone.values[redraw] = fresh.values
+    return clone, count

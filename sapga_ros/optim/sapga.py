@@ -20,6 +20,7 @@ import numpy as np
 from sapga_ros.evaluation.evaluator import BatchResult
 from sapga_ros.optim.operators import random_policy, refresh, uniform_crossover
 from sapga_ros.exemplars.policy import ExemplarPolicy
+from sapga_ros.exemplars.styles import style_named
 from sim_nodes.problem import Problem
 
 
@@ -34,10 +35,12 @@ class SapgaParams:
     crossover_rate: tuple = (0.3, 0.7)     # range of r in uniform exemplar crossover
     refresh_rate: tuple = (0.0, 0.5)       # range of r in the refresh operator
     max_tries: int = 100                   # crossover attempts before a child is repaired
+    style: str = 'state-action'            # exemplar style (sapga_ros.exemplars.styles)
 
     def __post_init__(self) -> None:
         if self.n_pop < 2 or self.n_child < 1 or not 1 <= self.l_min <= self.l_max:
             raise ValueError(f'invalid SAP-GA parameters: {self}')
+        style_named(self.style)
 
 
 @dataclass
@@ -88,13 +91,16 @@ class SapGA:
         """A random initial population; ``initial`` policies (prior knowledge) replace the
         first members."""
         rng = np.random.default_rng(seed)
-        pop = [Individual(random_policy(problem, rng, params.l_min, params.l_max))
+        pop = [Individual(random_policy(problem, rng, params.l_min, params.l_max, params.style))
                for _ in range(params.n_pop)]
         for i, policy in enumerate(list(initial)[:params.n_pop]):
             if policy.problem.name != problem.name:
                 raise ValueError(f'initial policy {i} is for {policy.problem.name}, '
                                  f'not {problem.name}')
-            pop[i] = Individual(ExemplarPolicy(problem, policy.states, policy.actions))
+            if policy.style != params.style:
+                raise ValueError(f'initial policy {i} is of style {policy.style}, '
+                                 f'not {params.style}')
+            pop[i] = Individual(policy.subset(slice(None)))
         return cls(problem, params, rng, pop)
 
     def ask(self) -> list[ExemplarPolicy]:

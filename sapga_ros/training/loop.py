@@ -18,7 +18,7 @@ import numpy as np
 
 from sapga_ros import __version__
 from sapga_ros.io.checkpoint import load_checkpoint, save_checkpoint
-from sapga_ros.errors import CheckpointError
+from sapga_ros.errors import CheckpointError, SapgaError
 from sapga_ros.evaluation.evaluator import Evaluator, set_jobs
 from sapga_ros.exemplars.policy import ExemplarPolicy
 from sapga_ros.optim.sapga import Individual, SapGA, SapgaParams, Stats
@@ -62,6 +62,8 @@ def _pack(individuals: list[Individual], prefix: str) -> dict[str, np.ndarray]:
         f'{prefix}_states': np.concatenate([m.policy.states for m in individuals]).reshape(
             -1, dim),
         f'{prefix}_actions': np.concatenate([m.policy.actions for m in individuals]),
+        f'{prefix}_exemplar_values': np.concatenate([m.policy.values for m in individuals]),
+        f'{prefix}_states2': np.concatenate([m.policy.states2 for m in individuals]),
         f'{prefix}_lengths': np.array([len(m.policy) for m in individuals], dtype=np.int64),
         f'{prefix}_values': np.array([m.value for m in individuals]),
         f'{prefix}_delta_star': np.array([m.delta_star for m in individuals]),
@@ -72,8 +74,11 @@ def _pack(individuals: list[Individual], prefix: str) -> dict[str, np.ndarray]:
     }
 
 
-def _unpack(problem: Problem, arrays: dict, prefix: str) -> list[Individual]:
+def _unpack(problem: Problem, arrays: dict, prefix: str,
+            style: str = 'state-action') -> list[Individual]:
     try:
+        values = arrays.get(f'{prefix}_exemplar_values')
+        states2 = arrays.get(f'{prefix}_states2')
         lengths = arrays[f'{prefix}_lengths']
         states, actions = arrays[f'{prefix}_states'], arrays[f'{prefix}_actions']
         if np.any(lengths < 1) or lengths.sum() != len(actions) or len(states) != len(actions):
@@ -85,8 +90,10 @@ def _unpack(problem: Problem, arrays: dict, prefix: str) -> list[Individual]:
         out = []
         for k in range(len(lengths)):
             a, b = bounds[k], bounds[k + 1]
-            policy = ExemplarPolicy(problem, arrays[f'{prefix}_states'][a:b],
-                                    arrays[f'{prefix}_actions'][a:b])
+            policy = ExemplarPolicy(
+                problem, arrays[f'{prefix}_states'][a:b], arrays[f'{prefix}_actions'][a:b],
+                style=style, values=None if values is None else values[a:b],
+                states2=None if states2 is None or not states2.shape[1] else states2[a:b])
             used = arrays[f'{prefix}_used'][a:b].copy() if arrays[f'{prefix}_has_used'][k] \
                 else None
             out.append(Individual(policy, float(arrays[f'{prefix}_values'][k]),
@@ -94,7 +101,7 @@ def _unpack(problem: Problem, arrays: dict, prefix: str) -> list[Individual]:
                                   int(arrays[f'{prefix}_steps'][k]),
                                   bool(arrays[f'{prefix}_reached'][k]), used))
         return out
-    except (KeyError, IndexError, ValueError) as exc:
+    except (KeyError, IndexError, ValueError, SapgaError) as exc:
         raise CheckpointError(f'checkpoint population {prefix!r} is inconsistent ({exc})') \
             from exc
 
@@ -125,13 +132,13 @@ def _restore(config: TrainConfig, problem: Problem, delta: float) -> tuple[SapGA
         stats = Stats(**meta['stats'])
     except (KeyError, TypeError, ValueError) as exc:
         raise CheckpointError(f'{config.checkpoint}: malformed run state ({exc})') from exc
-    population = _unpack(problem, arrays, 'pop')
+    population = _unpack(problem, arrays, 'pop', config.params.style)
     if len(population) != config.params.n_pop:
         raise CheckpointError(f'{config.checkpoint}: population of {len(population)}, '
                               f'expected {config.params.n_pop}')
     ga = SapGA(problem, config.params, rng, population, stats)
     if 'best_lengths' in arrays:
-        ga.best = _unpack(problem, arrays, 'best')[0]
+        ga.best = _unpack(problem, arrays, 'best', config.params.style)[0]
     return ga, list(meta.get('history', []))
 
 
@@ -196,7 +203,9 @@ def _best_policy(config: TrainConfig, ga: SapGA, delta: float, jobs: int) -> Exe
         'software': f'sapga_ros {__version__}',
         'time': time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime()),
     }
-    return ExemplarPolicy(ga.problem, best.policy.states, best.policy.actions, meta=meta)
+    policy = best.policy.subset(slice(None))
+    policy.meta = meta
+    return policy
 
 
 def write_log(path: Path, history: list[dict]) -> None:

@@ -1,0 +1,50 @@
+"""One policy answering one state at a time: the ROS policy node and the policy maps.
+
+``StateSelector`` packs a policy exactly as ``Evaluator`` packs a batch and calls the same
+compiled ``select``, so each action equals the one the offline episode takes.  Only the
+via-point style carries state from one step to the next (the via-points passed so far);
+``reset()`` starts a new episode.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from sapga_ros.evaluation.evaluator import Evaluator
+from sapga_ros.exemplars.policy import ExemplarPolicy
+from sapga_ros.exemplars.selectors import scratch, select
+from sapga_ros.exemplars.styles import STYLES
+
+
+class StateSelector:
+    """A policy prepared for single states (not thread-safe: one caller at a time)."""
+
+    def __init__(self, policy: ExemplarPolicy) -> None:
+        ev = Evaluator(policy.problem)
+        self.policy = policy
+        self.style = STYLES[policy.style]
+        number, ex, ex2, act, val, lengths = ev.pack([policy])
+        self._args = (number, ev.model)
+        self._policy_args = (ex[0], ex2[0], act[0], val[0], int(lengths[0]), ev.actions,
+                             ev.params, ev.inv_range, ev.is_angle, ev.radius2, ev.goal_u)
+        self._scratch = scratch(policy.problem.dim, len(policy))
+        self.used = np.zeros(len(policy), dtype=np.bool_)   # referred to since creation
+        self.progress = 0                                   # via-points passed
+
+    def __len__(self) -> int:
+        return len(self.policy)
+
+    @property
+    def stateful(self) -> bool:
+        """Whether an action depends on the states before (via-point)."""
+        return self.style.name == 'via-point'
+
+    def reset(self) -> None:
+        """A new episode starts: no via-point passed yet."""
+        self.progress = 0
+
+    def select(self, state: np.ndarray) -> tuple[int, float]:
+        """(exemplar index reported, -1 for none; action value) for a raw state."""
+        s = np.ascontiguousarray(state, dtype=np.float64)
+        j, action, self.progress = select(*self._args, s, *self._policy_args, self.progress,
+                                          self.used, *self._scratch)
+        return int(j), float(action)
