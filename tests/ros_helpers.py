@@ -243,3 +243,22 @@ class Probe(Node):
     def end_of(self, episode: int) -> dict | None:
         """The goal / step_limit event that ended ``episode``, or None."""
         return self.event('goal', episode) or self.event('step_limit', episode)
+
+
+def run_lockstep(ros, problem, policy, path, delta, episodes=2):
+    """Sim (lockstep) + policy node + probe in process; the policy is set once all match."""
+    from sapga_ros.nodes.policy_node import PolicyNode
+    from sim_nodes.ros.sim_node import SimNode
+    probe = ros.start(Probe, problem=problem)
+    pol = ros.start(PolicyNode, params={'problem': problem.name})
+    sim = ros.start(SimNode, params={'problem': problem.name, 'mode': 'lockstep',
+                                     'delta': delta, 'max_episodes': episodes,
+                                     'republish_period': 0.05})
+    ros.wait_for(lambda: sim._state_pub.get_subscription_count() == 2
+                 and sim._command_sub.get_publisher_count() == 2 and probe.states,
+                 'discovery of sim, policy node and probe')
+    policy.save(path)
+    assert pol.set_parameters([Parameter('policy_file', value=str(path))])[0].successful
+    for k in range(1, episodes + 1):
+        ros.wait_for(lambda k=k: probe.end_of(k), f'the end of episode {k}')
+    return probe, sim

@@ -12,10 +12,9 @@ from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
-from ros_helpers import PROBE_QOS, Probe, isolated_ros
+from ros_helpers import PROBE_QOS, Probe, isolated_ros, run_lockstep
 from sapga_ros.evaluation.evaluator import Evaluator
 from sim_nodes.ros.common import JointStateLayout
-from sapga_ros.nodes.policy_node import PolicyNode
 from sapga_ros.exemplars.policy import ExemplarPolicy
 from sim_nodes.models import model_module
 from sim_nodes.problem import load_problem
@@ -47,23 +46,6 @@ def acrobot_cases():
     limit = policies[int(np.argmin(result.reached))]
     assert result.reached.any() and not result.reached.all()
     return problem, [goal, limit]
-
-
-def run_lockstep(ros, problem, policy, path, delta, episodes=2):
-    """Sim (lockstep) + policy node + probe in process; the policy is set once all match."""
-    probe = ros.start(Probe, problem=problem)
-    pol = ros.start(PolicyNode, params={'problem': problem.name})
-    sim = ros.start(SimNode, params={'problem': problem.name, 'mode': 'lockstep',
-                                     'delta': delta, 'max_episodes': episodes,
-                                     'republish_period': 0.05})
-    ros.wait_for(lambda: sim._state_pub.get_subscription_count() == 2
-                 and sim._command_sub.get_publisher_count() == 2 and probe.states,
-                 'discovery of sim, policy node and probe')
-    policy.save(path)
-    assert pol.set_parameters([Parameter('policy_file', value=str(path))])[0].successful
-    for k in range(1, episodes + 1):
-        ros.wait_for(lambda k=k: probe.end_of(k), f'the end of episode {k}')
-    return probe, sim
 
 
 @pytest.mark.parametrize('case', [0, 1], ids=['goal', 'step_limit'])

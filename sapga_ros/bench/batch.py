@@ -4,7 +4,9 @@ Measures policy-environment MDP steps per second for batch evaluation (100 exemp
 policy, 500 policies, full 400-step episodes: delta = 0 so no episode ends early) on one
 thread (the per-core figure) and on every core, and the ratio of the per-core figure to
 ``sim_nodes.reference.episode`` (plain NumPy, one step at a time, one core) run in the same
-process on a few of the same policies.  Numbers only: nothing here asserts a time.
+process on a few of the same policies.  ``style`` measures another exemplar style's
+selector on the same problems (its NumPy baseline exists for state-action only).  Numbers
+only: nothing here asserts a time.
 """
 from __future__ import annotations
 
@@ -19,12 +21,12 @@ from sim_nodes.problem import load_problem
 
 
 def bench_problem(name: str, policies: int = 500, exemplars: int = 100, seed: int = 0,
-                  baseline_policies: int = 2, repeats: int = 3) -> dict:
+                  baseline_policies: int = 2, repeats: int = 3,
+                  style: str = 'state-action') -> dict:
     """Speed figures of one problem."""
     problem = load_problem(name)
     rng = np.random.default_rng(seed)
-    pols = [random_exemplars(problem, exemplars, rng)
-            for _ in range(policies)]
+    pols = [random_exemplars(problem, exemplars, rng, style) for _ in range(policies)]
     evaluator = Evaluator(problem, delta=0.0)  # delta 0: every episode runs 400 steps
     evaluator.evaluate(pols[:2])               # compile outside the timing
 
@@ -40,6 +42,10 @@ def bench_problem(name: str, policies: int = 500, exemplars: int = 100, seed: in
     one_core, _, steps = rate(1)                # per core: one thread on one core
     all_cores, threads, _ = rate(None)
     set_jobs(None)
+    figures = {'problem': name, 'style': style, 'threads': threads, 'steps': steps,
+               'steps_per_s_per_core': one_core, 'steps_per_s_all_cores': all_cores}
+    if style != 'state-action':
+        return figures
     t0 = time.perf_counter()
     base_steps = 0
     for p in pols[:baseline_policies]:
@@ -47,9 +53,7 @@ def bench_problem(name: str, policies: int = 500, exemplars: int = 100, seed: in
         base_steps += n
     base_time = time.perf_counter() - t0
     base_rate = base_steps / base_time
-    return {'problem': name, 'threads': threads, 'steps': steps,
-            'steps_per_s_per_core': one_core, 'steps_per_s_all_cores': all_cores,
-            'numpy_steps_per_s': base_rate, 'speedup_vs_numpy': one_core / base_rate}
+    return {**figures, 'numpy_steps_per_s': base_rate, 'speedup_vs_numpy': one_core / base_rate}
 
 
 def run_bench() -> dict:
@@ -61,3 +65,17 @@ def run_bench() -> dict:
             'speedup_vs_numpy': acro['speedup_vs_numpy'],
             'pdip_speedup_vs_numpy': pdip['speedup_vs_numpy'],
             'threads': acro['threads'], 'details': [acro, pdip]}
+
+
+def run_style_bench(styles) -> dict:
+    """MDP steps/s per core and on every core of each style, on acrobot and PDIP."""
+    out = {}
+    for style in styles:
+        acro = bench_problem('acrobot', style=style, repeats=2)
+        pdip = bench_problem('pdip', style=style, repeats=2)
+        out[style] = {'acrobot_steps_per_s_per_core': acro['steps_per_s_per_core'],
+                      'acrobot_steps_per_s_all_cores': acro['steps_per_s_all_cores'],
+                      'pdip_steps_per_s_per_core': pdip['steps_per_s_per_core'],
+                      'pdip_steps_per_s_all_cores': pdip['steps_per_s_all_cores'],
+                      'threads': acro['threads']}
+    return out

@@ -112,6 +112,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help='instead: the lockstep loop through DDS and the policy node\'s '
                         'selection time (sapga_ros.bench.ros)')
     b.add_argument('--problem', default='acrobot', help='with --ros: the problem')
+    b.add_argument('--style', choices=(*STYLES, 'all'),
+                   help='batch evaluation speed of this exemplar style (or all)')
 
     add_inspect_arguments(sub.add_parser(
         'inspect', help='summarise (and plot) a recording: a bag directory or an MCAP file'))
@@ -301,6 +303,8 @@ def cmd_bench(args) -> int:
     if args.ros:
         from sapga_ros.bench.ros import main as bench_ros
         return bench_ros(['--problem', args.problem, '--processes'])
+    if args.style:
+        return _bench_styles(args)
     from sapga_ros.bench.batch import run_bench
     result = run_bench()
     if args.json:
@@ -311,6 +315,20 @@ def cmd_bench(args) -> int:
               f"core, {d['steps_per_s_all_cores'] / 1e6:6.3f} M steps/s on {d['threads']} "
               f"threads; NumPy loop: {d['numpy_steps_per_s']:8.0f} steps/s; speedup per core "
               f"{d['speedup_vs_numpy']:6.0f}x")
+    return 0
+
+
+def _bench_styles(args) -> int:
+    from sapga_ros.bench.batch import run_style_bench
+    result = run_style_bench(list(STYLES) if args.style == 'all' else [args.style])
+    if args.json:
+        print(json.dumps(result))
+        return 0
+    for style, d in result.items():
+        print(f"{style:18s} acrobot {d['acrobot_steps_per_s_per_core'] / 1e6:6.3f} M steps/s "
+              f"per core ({d['acrobot_steps_per_s_all_cores'] / 1e6:6.3f} M on "
+              f"{d['threads']} threads); pdip {d['pdip_steps_per_s_per_core'] / 1e6:6.3f} M "
+              f"per core ({d['pdip_steps_per_s_all_cores'] / 1e6:6.3f} M)")
     return 0
 
 

@@ -20,6 +20,7 @@ import numpy as np
 import yaml
 
 from sapga_ros.errors import ConfigError
+from sapga_ros.exemplars.styles import STYLES
 from sim_nodes.problem import config_dir, load_problem
 
 GRID_POINTS = 100
@@ -32,6 +33,7 @@ class Experiment:
     delta: float
     method: str
     steps: int
+    style: str = 'state-action'            # exemplar style of a SAP-GA experiment
 
 
 def load_experiments(name: str) -> tuple[list[Experiment], int]:
@@ -43,7 +45,8 @@ def load_experiments(name: str) -> tuple[list[Experiment], int]:
     try:
         doc = yaml.safe_load(path.read_text(encoding='utf-8'))
         exps = [Experiment(int(e['id']), str(e['problem']), float(e['delta']),
-                           str(e['method']), int(e['steps'])) for e in doc['experiments']]
+                           str(e['method']), int(e['steps']), str(e.get('style', 'state-action')))
+                for e in doc['experiments']]
         seeds = int(doc.get('seeds', 20))
     except (OSError, yaml.YAMLError, KeyError, TypeError, ValueError) as exc:
         raise ConfigError(f'{path}: malformed experiment file ({exc})') from exc
@@ -51,15 +54,19 @@ def load_experiments(name: str) -> tuple[list[Experiment], int]:
         load_problem(e.problem)
         if e.method not in ('sapga', 'ql') or e.steps <= 0 or not e.delta >= 0:
             raise ConfigError(f'{path}: experiment {e.id}: bad method/steps/delta')
+        if e.style not in STYLES:
+            raise ConfigError(f'{path}: experiment {e.id}: unknown style {e.style[:40]!r} '
+                              f'(known: {", ".join(STYLES)})')
     return exps, seeds
 
 
 def _run_one(args: tuple) -> dict:
     exp, seed, steps = args
     from sapga_ros.training.ql_run import train_ql
+    from sapga_ros.optim.sapga import SapgaParams
     from sapga_ros.training.loop import TrainConfig, train_sapga
     cfg = TrainConfig(problem=exp.problem, method=exp.method, delta=exp.delta, steps=steps,
-                      seed=seed, jobs=1)
+                      seed=seed, jobs=1, params=SapgaParams(style=exp.style))
     result = train_sapga(cfg) if exp.method == 'sapga' else train_ql(cfg)
     hist = result.history
     return {'seed': seed, 'steps': [r['steps'] for r in hist],
@@ -67,7 +74,8 @@ def _run_one(args: tuple) -> dict:
             'delta_star': [r['delta_star'] for r in hist],
             'final': {'best_value': hist[-1]['best_value'],
                       'delta_star': hist[-1]['delta_star'],
-                      'achieved': hist[-1]['delta_star'] <= exp.delta}}
+                      'achieved': hist[-1]['delta_star'] <= exp.delta,
+                      'steps_per_s': hist[-1]['steps_per_s']}}
 
 
 def resample(steps: list[int], values: list[float], grid: np.ndarray) -> np.ndarray:
@@ -95,6 +103,7 @@ def summarise(exp: Experiment, runs: list[dict], budget: int) -> dict:
             return {'mean': _nulls(np.nanmean(a, axis=0)), 'std': _nulls(np.nanstd(a, axis=0))}
     finals = [r['final'] for r in runs]
     return {'id': exp.id, 'problem': exp.problem, 'method': exp.method, 'delta': exp.delta,
+            'style': exp.style,
             'steps': budget, 'seeds': [r['seed'] for r in runs], 'grid': grid.tolist(),
             'best_value': stat(best), 'delta_star': stat(dstar),
             'achieved_fraction': achieved.mean(axis=0).tolist(),
@@ -103,7 +112,24 @@ def summarise(exp: Experiment, runs: list[dict], budget: int) -> dict:
                       'delta_star_mean': float(np.mean([f['delta_star'] for f in finals])),
                       'delta_star_std': float(np.std([f['delta_star'] for f in finals])),
                       'achieved': int(sum(f['achieved'] for f in finals)),
+                      'steps_per_s_mean': float(np.mean([f.get('steps_per_s', math.nan)
+                                                         for f in finals])),
                       'runs': len(finals)}}
+
+
+def markdown_table(summaries: list[dict]) -> str:
+    """The final measures of each experiment as a Markdown table."""
+    lines = ['| # | problem | delta | method | style | steps | achieved | best value | '
+             'delta* | steps/s (one run) |', '|---|---|---|---|---|---|---|---|---|---|']
+    for s in summaries:
+        f = s['final']
+        style = s.get('style', 'state-action') if s['method'] == 'sapga' else '-'
+        lines.append(f"| {s['id']} | {s['problem']} | {s['delta']} | {s['method']} | {style} "
+                     f"| {s['steps']:,d} | {f['achieved']}/{f['runs']} "
+                     f"| {f['best_value_mean']:.1f} ± {f['best_value_std']:.1f} "
+                     f"| {f['delta_star_mean']:.4f} ± {f['delta_star_std']:.4f} "
+                     f"| {f.get('steps_per_s_mean', math.nan) / 1e3:,.0f} k |")
+    return '\n'.join(lines) + '\n'
 
 
 def plot_summaries(summaries: list[dict], out: Path) -> list[Path]:
@@ -119,7 +145,9 @@ def plot_summaries(summaries: list[dict], out: Path) -> list[Path]:
         fig, axes = plt.subplots(1, 3, figsize=(14, 4))
         for s in items:
             x = np.array(s['grid']) / 1e6
-            label = f"#{s['id']} {s['method'].upper()} {s['problem']} delta={s['delta']}"
+            style = s.get('style', 'state-action')
+            label = (f"#{s['id']} {s['method'].upper()} {s['problem']} delta={s['delta']}"
+                     + (f' {style}' if style != 'state-action' else ''))
             for ax, key in zip(axes[:2], ('best_value', 'delta_star')):
                 m = np.array(s[key]['mean'], dtype=float)
                 sd = np.array(s[key]['std'], dtype=float)
@@ -178,6 +206,7 @@ def run_experiments(name: str, out: str | os.PathLike, only: list[int] | None = 
         summaries.append(s)
         raw[str(exp.id)] = runs
     (out / 'summary.json').write_text(json.dumps(summaries, indent=1))
+    (out / 'summary.md').write_text(markdown_table(summaries))
     (out / 'runs.json').write_text(json.dumps(raw))
     for path in plot_summaries(summaries, out):
         log(f'figure: {path}')
