@@ -1,6 +1,9 @@
 """Package build for sapga_ros: an ament_python package that colcon and pip both accept.
 
 Every executable must be found where ``ros2 run`` looks, ``<prefix>/lib/sapga_ros/<exe>``.
+The executables are NODES and one simulator ``<model>_sim`` per model module of
+sim_nodes/models (``model_simulators``: the models' registry file runs on its own, nothing of
+the package is imported).
 
 * ``colcon build`` runs ``setup.py install`` (or ``develop`` with ``--symlink-install``) and
   setup.cfg sends the console scripts straight to ``$base/lib/sapga_ros``.
@@ -16,6 +19,7 @@ Every executable must be found where ``ros2 run`` looks, ``<prefix>/lib/sapga_ro
 """
 import glob
 import os
+import runpy
 
 from setuptools import find_packages, setup
 # setuptools has no install_data of its own; importing setuptools first makes this its distutils
@@ -27,14 +31,24 @@ except ImportError:  # setuptools < 64 has no PEP 660 editable installs
     _editable_wheel = None
 
 PACKAGE = 'sapga_ros'
-EXECUTABLES = {
+HERE = os.path.dirname(os.path.abspath(__file__))
+NODES = {
     'sapga': 'sapga_ros.cli.main:main',
-    'acrobot_sim': 'sim_nodes.ros.sim_node:acrobot_main',
-    'pdip_sim': 'sim_nodes.ros.sim_node:pdip_main',
+    'sim_node': 'sim_nodes.ros.sim_node:main',
     'policy_node': 'sapga_ros.nodes.policy_node:main',
     'trainer_node': 'sapga_ros.nodes.trainer_node:main',
     'recorder_node': 'sapga_ros.nodes.recorder_node:main',
 }
+
+
+def model_simulators():
+    """``<model>_sim`` for every model of sim_nodes/models (its registry.py, run on its own)."""
+    registry = runpy.run_path(os.path.join(HERE, 'sim_nodes', 'models', 'registry.py'))
+    names = (registry['sim_executable'](model) for model in registry['model_names']())
+    return {name: f'sim_nodes.ros.sim_node:mains.{name}' for name in names}
+
+
+EXECUTABLES = {**NODES, **model_simulators()}
 # A launcher lives in <prefix>/lib/sapga_ros; a wheel's console scripts in <prefix>/bin.
 LAUNCHER = """#!/bin/sh
 # `ros2 run {package} {exe}` entry point: runs the console script of this install prefix.

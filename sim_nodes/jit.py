@@ -65,13 +65,15 @@ def _compile(fn, extra: dict):
     saved = numba.core.config.CACHE_DIR
     numba.core.config.CACHE_DIR = cache_dir(fn.__code__.co_filename)  # read at decoration
     try:
-        return njit(**OPTIONS, **extra)(fn)
+        return njit(**{**OPTIONS, **extra})(fn)
     finally:
         numba.core.config.CACHE_DIR = saved
 
 
 def kernel(fn=None, **extra):
-    """``@kernel`` / ``@kernel(inline='always', parallel=True)``: numba njit with OPTIONS."""
+    """``@kernel`` / ``@kernel(inline='always', parallel=True)``: numba njit with OPTIONS
+    (``cache=False`` for functions made at run time: numba keys a closure's cache by its
+    pickled cells, which differ in every process)."""
     if fn is None:
         return lambda f: _compile(f, extra)
     return _compile(fn, {})

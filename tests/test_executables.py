@@ -6,10 +6,14 @@ import pytest
 from ament_index_python.packages import get_package_prefix
 
 from ros_helpers import executable, isolated_ros
+from sim_nodes.models import MODELS
+from sim_nodes.models.registry import sim_executable
 
 NODES = {
+    **{sim_executable(model): [] for model in MODELS},   # its own problem by default
     'acrobot_sim': ['-p', 'mode:=lockstep'],
     'pdip_sim': ['-p', 'problem:=pdip_single'],
+    'sim_node': ['-p', 'problem:=mountain_car'],
     'policy_node': ['-p', 'problem:=pdip'],
     'trainer_node': ['-p', 'train_on_start:=false'],
     'recorder_node': [],

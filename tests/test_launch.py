@@ -181,6 +181,23 @@ def test_swingup_lockstep_recording_equals_sapga_eval(tmp_path, capsys):
     assert rewards and all(-5.0 <= r <= -1.0 for r in rewards)   # the acrobot's reward range
 
 
+def test_swingup_deploys_a_mountain_car_policy_like_the_pendulums(tmp_path, capsys):
+    """A mountain-car policy runs through ``mountain_car_sim``: the recorded episode reaches
+    the goal and equals sapga eval."""
+    problem = load_problem('mountain_car')
+    pump = ExemplarPolicy(problem, np.array([[-0.5, 0.01], [-0.5, -0.01]]), np.array([1, 0]))
+    pump.save(tmp_path / 'pump.json')   # push the way the car moves: pumps energy in
+    done = launch(['swingup', '--policy', 'pump.json', '--mode', 'lockstep', '--episodes', '1',
+                   '--out', 'rec'], tmp_path)
+    assert '[mountain_car_sim]' in done.stdout
+    assert 'every lockstep episode is equal' in done.stdout
+    (end,), rewards = recorded_episodes(the_bag(tmp_path / 'rec'))
+    expected = sapga_eval_json(tmp_path / 'pump.json', capsys)
+    assert expected['reached'] and end['event'] == 'goal'
+    assert (end['return'], end['step']) == (expected['return'], expected['steps'])
+    assert rewards == [-1.0] * expected['steps']
+
+
 def test_train_deploy_serves_records_and_equals_the_offline_evaluation(tmp_path, capsys):
     """train_deploy's trained, served, recorded episode equals sapga eval of the policy file."""
     done = launch(['train_deploy', '--steps', '100000', '--delta', '0.3', '--out', 'td',

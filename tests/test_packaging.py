@@ -15,6 +15,8 @@ from pathlib import Path
 
 import pytest
 
+from sim_nodes.models.registry import model_names, sim_executable
+
 REPO = Path(__file__).resolve().parents[1]
 PACKAGE = 'sapga_ros'
 # what a source checkout of the package is; build outputs, .git and .venv stay behind
@@ -25,14 +27,14 @@ IGNORED = shutil.ignore_patterns('__pycache__', '*.pyc', '*.egg-info', 'build', 
 TIMEOUT = 300  # [s] for one build or one `--help` on a loaded machine
 
 
-def _executables() -> dict[str, str]:
-    """The EXECUTABLES literal of setup.py: executable name -> console-script target."""
+def _executables() -> list[str]:
+    """setup.py's executables: its NODES literal and one simulator per model (registry)."""
     tree = ast.parse((REPO / 'setup.py').read_text(encoding='utf-8'))
     for node in tree.body:
         if (isinstance(node, ast.Assign) and len(node.targets) == 1
-                and getattr(node.targets[0], 'id', None) == 'EXECUTABLES'):
-            return ast.literal_eval(node.value)
-    raise AssertionError('setup.py defines no EXECUTABLES dict')
+                and getattr(node.targets[0], 'id', None) == 'NODES'):
+            return [*ast.literal_eval(node.value), *map(sim_executable, model_names())]
+    raise AssertionError('setup.py defines no NODES dict')
 
 
 EXECUTABLES = sorted(_executables())
@@ -64,6 +66,15 @@ def _assert_ok(proc: subprocess.CompletedProcess, what: str) -> None:
     assert proc.returncode == 0, (
         f'{what} exited {proc.returncode}\n--- stdout\n{proc.stdout[-4000:]}'
         f'\n--- stderr\n{proc.stderr[-4000:]}')
+
+
+def _assert_simulators_start(lib: Path, env: dict[str, str]) -> None:
+    """Every simulator executable in ``lib`` reaches its node (``sim_nodes.ros.sim_node:
+    mains.<model>_sim`` resolves), which refuses an unknown problem with exit 1."""
+    for exe in (e for e in EXECUTABLES if e.endswith('_sim') or e == 'sim_node'):
+        proc = _run([lib / exe, '--ros-args', '-p', 'problem:=no_such_problem'], env=env)
+        assert proc.returncode == 1 and "unknown problem 'no_such_problem'" in proc.stderr, (
+            f'{exe}: exit {proc.returncode}\n{proc.stderr[-2000:]}')
 
 
 def _copy_package(dest: Path) -> Path:
@@ -182,6 +193,7 @@ def test_pip_install_puts_launchers_and_share_files_into_prefix(tmp_path):
     env = _env(PYTHONPATH=str(_site_packages(prefix)), AMENT_PREFIX_PATH=str(prefix))
     proc = _run([prefix / 'lib' / PACKAGE / 'sapga', '--help'], env=env)
     _assert_ok(proc, 'pip-installed lib/sapga_ros/sapga --help')
+    _assert_simulators_start(prefix / 'lib' / PACKAGE, env)
 
 
 @pytest.mark.parametrize('mode', ['install', 'symlink-install'])
@@ -212,3 +224,4 @@ def test_colcon_build_puts_console_scripts_where_ros2_run_looks(tmp_path, mode):
 
     proc = _run([pkg_prefix / 'lib' / PACKAGE / 'sapga', '--help'], env=_hook_env(pkg_prefix))
     _assert_ok(proc, f'colcon-built ({mode}) lib/sapga_ros/sapga --help')
+    _assert_simulators_start(pkg_prefix / 'lib' / PACKAGE, _hook_env(pkg_prefix))

@@ -28,6 +28,7 @@ import numpy as np
 
 from sapga_ros.evaluation.evaluator import Evaluator
 from sapga_ros.exemplars.policy import ExemplarPolicy
+from sim_nodes.models.registry import sim_executable
 from sim_nodes.problem import Problem, load_problem
 
 N_EXEMPLARS = 100  # L_max of SAP-GA: the largest policy the trainer produces
@@ -156,7 +157,7 @@ def bench_lockstep_processes(problem: Problem, policy: ExemplarPolicy,
     _env(domain)
     env = dict(os.environ, PYTHONUNBUFFERED='1')
     bin_dir = Path(sys.prefix) / 'bin'
-    sim_exe = 'pdip_sim' if problem.model == 'pdip' else 'acrobot_sim'
+    sim_exe = sim_executable(problem.model)
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / 'policy.json'
         policy.save(path)

@@ -57,6 +57,7 @@ from sapga_ros.recording.session import free_bag_path, utc_stamp
 from sapga_ros.recording.verify import recording_gaps
 from sapga_ros.launch import (LaunchError, Supervisor, find_executable, launch_main,
                               write_params_file)
+from sim_nodes.models.registry import sim_executable
 from sim_nodes.ros.common import EVENT_QOS, qos_profile, spin_guarded, stamp_ns, topic_names
 from sim_nodes.problem import Problem, load_problem
 
@@ -191,11 +192,6 @@ class StackOptions:
     real_time_factor: float = 1.0
 
 
-def sim_executable(problem: Problem) -> str:
-    """The simulator executable of a problem's model (``acrobot_sim``, ``pdip_sim``)."""
-    return f'{problem.model}_sim'
-
-
 @dataclass
 class DeployStack:
     """Recorder, simulator and policy node under a supervisor, driven by the launcher node."""
@@ -225,7 +221,7 @@ class DeployStack:
         """Start the simulator: lockstep, silent, its first episode once the recorder is
         ready (``wait_for_recorder``)."""
         o = self.opts
-        self.spawn('sim', sim_executable(o.problem), {
+        self.spawn('sim', sim_executable(o.problem.model), {
             'problem': o.problem.name, 'mode': 'lockstep', 'delta': float(o.delta),
             'auto_reset': True, 'max_episodes': o.episodes, 'republish_period': 0.0,
             'real_time_factor': float(o.real_time_factor), 'wait_for_recorder': 'recorder',
@@ -280,7 +276,7 @@ class DeployStack:
         self.ros.node.last_new_state = time.monotonic()
         change = ({'mode': 'realtime'} if self.opts.mode == 'realtime'
                   else {'republish_period': REPUBLISH_S})
-        self.ros.set_parameters(self.sup, sim_executable(self.opts.problem), change)
+        self.ros.set_parameters(self.sup, sim_executable(self.opts.problem.model), change)
 
     def run_episodes(self) -> list[dict]:
         """Wait for the N episode end events (lockstep: fail if the episode stalls)."""

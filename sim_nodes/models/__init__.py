@@ -8,8 +8,9 @@ A model module provides, all compiled with numba and free of Python objects:
   (``substeps`` integration substeps holding ``action``) and return that step's reward.
 
 Goal area and ``delta(s)`` are data (``goal`` in the YAML), shared by every model
-(``sim_nodes.goal``).  A new problem is one YAML file plus one module here (named in
-MODELS and given its branch in ``dispatch.step_lanes``).
+(``sim_nodes.goal``).  A new problem is one YAML file plus one module here: MODELS
+(``registry.py``), the compiled dispatch (``dispatch.py``) and the simulator executables
+find every module that defines ``mdp_step_lanes``.
 """
 from __future__ import annotations
 
@@ -17,8 +18,9 @@ import importlib
 from types import ModuleType
 
 from sim_nodes.errors import ConfigError
+from sim_nodes.models.registry import model_names
 
-MODELS = ('acrobot', 'pdip', 'mountain_car')
+MODELS = model_names()
 
 
 def model_id(name: str) -> int:

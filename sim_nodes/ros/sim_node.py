@@ -8,7 +8,8 @@ Parameters (validated on every change; ``problem`` is read-only):
 ==================  ========  ==============  ===============================================
 name                type      default         meaning
 ==================  ========  ==============  ===============================================
-problem             string    per executable  msg_configs/<problem>.yaml (acrobot, pdip, ...)
+problem             string    per executable  msg_configs/<problem>.yaml; ``<model>_sim``: the
+                                              model's own, ``sim_node``: acrobot
 mode                string    realtime        ``realtime``: one MDP step per tick of wall time /
                                               real_time_factor, zero-order hold on the last
                                               command; ``lockstep``: one MDP step per command
@@ -36,7 +37,8 @@ from __future__ import annotations
 import json
 import math
 from dataclasses import dataclass, fields
-from typing import Any
+from types import SimpleNamespace
+from typing import Any, Callable
 
 import numpy as np
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
@@ -52,7 +54,8 @@ from sim_nodes.ros.common import (CLOCK_QOS, EVENT_QOS, QUIET_PUBLISHER, THROTTL
                                   JointStateLayout, qos_profile, run_node, steady_clock,
                                   topic_names)
 from sim_nodes.goal import goal_arrays, goal_delta
-from sim_nodes.models import model_module
+from sim_nodes.models import MODELS, model_module
+from sim_nodes.models.registry import GENERIC_SIM, sim_executable
 from sim_nodes.problem import load_problem
 from sim_nodes.ros.recorder_gate import RecorderGate
 
@@ -317,20 +320,22 @@ class SimNode(Node):
 
 
 def main(args: list[str] | None = None, problem: str = 'acrobot',
-         node_name: str = 'sim') -> int:
-    """Run a simulator node (``problem`` is the default of the ``problem`` parameter)."""
+         node_name: str = GENERIC_SIM) -> int:
+    """``ros2 run sapga_ros sim_node``: a simulator node of any problem (``problem`` is the
+    default of the ``problem`` parameter)."""
     return run_node(lambda: SimNode(default_problem=problem, node_name=node_name), args)
 
 
-def acrobot_main(args: list[str] | None = None) -> int:
-    """``ros2 run sapga_ros acrobot_sim``."""
-    return main(args, 'acrobot', 'acrobot_sim')
+def model_main(model: str) -> Callable[[list[str] | None], int]:
+    """``main`` of ``ros2 run sapga_ros <model>_sim``: node ``<model>_sim``, problem
+    ``<model>`` by default (``pdip_sim -p problem:=pdip_single`` for the single pole)."""
+    name = sim_executable(model)
+    return lambda args=None: main(args, model, name)
 
 
-def pdip_main(args: list[str] | None = None) -> int:
-    """``ros2 run sapga_ros pdip_sim`` (``-p problem:=pdip_single`` for the single pole)."""
-    return main(args, 'pdip', 'pdip_sim')
+# the console scripts of setup.py: ``<model>_sim = sim_nodes.ros.sim_node:mains.<model>_sim``
+mains = SimpleNamespace(**{sim_executable(m): model_main(m) for m in MODELS})
 
 
 if __name__ == '__main__':
-    raise SystemExit(acrobot_main())
+    raise SystemExit(main())
