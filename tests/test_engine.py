@@ -1,0 +1,50 @@
+"""The one episode engine: every episode loop of the package computes what ``run_share``
+computes.  The batch and the traced episode are the same loop (tests/test_styles.py); the
+ROS simulator's stepping equals it (tests/test_sim_node.py, tests/test_styles_ros.py); here,
+Q-learning's greedy episode equals the engine running the same greedy policy written as
+state-action exemplars (one per tile centre: on a rectangular grid the nearest centre under
+the normalised distance is the tile holding the state)."""
+from __future__ import annotations
+
+import dataclasses
+import itertools
+
+import numpy as np
+
+from sapga_ros.evaluation.evaluator import Evaluator
+from sapga_ros.exemplars.policy import ExemplarPolicy
+from sapga_ros.optim.qlearning import QTable
+from sim_nodes.problem import load_problem
+
+
+def tile_centre_policy(table: QTable) -> ExemplarPolicy:
+    """The greedy policy of ``table`` as exemplars at the tile centres (first-index ties)."""
+    problem = table.problem
+    idx, low, width, tiles = table.tiling
+    assert list(idx) == list(range(problem.dim))
+    states, actions = [], []
+    for cell_digits in itertools.product(range(tiles), repeat=len(idx)):
+        digits = np.array(cell_digits[::-1])       # cell = sum digit_i * tiles^i
+        cell = int(sum(d * tiles ** i for i, d in enumerate(digits)))
+        states.append(low + (digits + 0.5) * width)
+        actions.append(int(np.argmax(table.q[cell])))
+    return ExemplarPolicy(problem, np.array(states), np.array(actions))
+
+
+def test_q_learning_greedy_episode_equals_the_engine():
+    """Same states, actions, rewards, return, delta* and end, bit for bit (mountain car;
+    19 tiles a side, so that the initial v = 0 lies inside a tile, not on a tile edge, where
+    the tiling and the nearest centre may break the tie differently)."""
+    problem = dataclasses.replace(load_problem('mountain_car'), ql_tiles_per_dim=19)
+    rng = np.random.default_rng(8)
+    tiles = problem.ql_tiles_per_dim
+    for trial in range(8):
+        q = rng.normal(size=(tiles ** problem.dim, len(problem.actions)))
+        table = QTable(problem, q, np.ones(len(q), dtype=bool), {})
+        greedy = table.episode(0.0)
+        engine = Evaluator(problem, 0.0).episode(tile_centre_policy(table))
+        assert np.array_equal(greedy.states, engine.states), trial
+        assert np.array_equal(greedy.actions, engine.actions)
+        assert np.array_equal(greedy.rewards, engine.rewards)
+        assert (greedy.ret, greedy.steps, greedy.delta_star, greedy.reached) == (
+            engine.ret, engine.steps, engine.delta_star, engine.reached)
