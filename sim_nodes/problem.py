@@ -19,6 +19,7 @@ import numpy as np
 import yaml
 
 from sim_nodes.errors import ConfigError, UnknownProblemError
+from sim_nodes.files import TooLarge, load_yaml, read_bounded
 
 CONFIG_ENV = 'SAPGA_CONFIG_DIR'
 _FLOAT_RE = re.compile(r'^\s*[+-]?(\d+(\.\d*)?|\.\d+)([eE][+-]?\d+)?\s*$')
@@ -308,16 +309,15 @@ def load_problem_file(path: str | os.PathLike) -> Problem:
     """Parse one problem YAML file."""
     path = Path(path)
     try:
-        size = path.stat().st_size
-        if size > MAX_CONFIG_BYTES:
-            raise ConfigError(f'{path}: {size} bytes, larger than the {MAX_CONFIG_BYTES} limit')
-        text = path.read_text(encoding='utf-8')
+        text = read_bounded(path, MAX_CONFIG_BYTES).decode('utf-8')
+    except TooLarge:
+        raise ConfigError(f'{path}: larger than the {MAX_CONFIG_BYTES} bytes limit') from None
     except OSError as exc:
-        raise ConfigError(f'{path}: cannot read ({exc.strerror})') from exc
+        raise ConfigError(f'{path}: cannot read ({exc.strerror or exc})') from exc
     except UnicodeDecodeError as exc:
         raise ConfigError(f'{path}: not UTF-8 text') from exc
     try:
-        doc = yaml.safe_load(text)
+        doc = load_yaml(text)
     except yaml.YAMLError as exc:
         raise ConfigError(f'{path}: malformed YAML ({str(exc).splitlines()[0]})') from exc
     return parse_problem(doc, str(path))

@@ -5,7 +5,9 @@ import numpy as np
 import pytest
 
 from sapga_ros.errors import ConfigError
-from sapga_ros.training.experiments import load_experiments, resample, run_experiments
+from sapga_ros.training.experiment_report import resample
+from sapga_ros.training.experiment_set import load_experiments
+from sapga_ros.training.experiments import run_experiments
 
 
 def test_table2_defines_the_papers_four_experiments():
@@ -44,7 +46,72 @@ def test_summary_statistics_are_those_of_the_runs(tmp_path):
 
 def test_unknown_experiment_set_or_id_is_refused(tmp_path):
     """Unknown names and ids are errors naming what exists."""
-    with pytest.raises(ConfigError, match='known: table2'):
+    with pytest.raises(ConfigError, match='known: .*table2'):
         run_experiments('table9', tmp_path)
     with pytest.raises(ConfigError, match=r'no experiment \[7\]'):
         run_experiments('table2', tmp_path, only=[7])
+
+
+def test_each_run_is_written_when_it_finishes_and_a_rerun_resumes(tmp_path):
+    """Every (experiment, seed) run lands in runs/ as it finishes; a second call with the same
+    --out runs nothing again and gives the same summary; a lost run is redone alone."""
+    quiet = {'seeds': 2, 'scale': 0.01, 'workers': 2, 'log': lambda *a: None}
+    first = run_experiments('styles', tmp_path, only=[1, 11], **quiet)
+    files = sorted(p.name for p in (tmp_path / 'runs').iterdir())
+    assert files == ['1-seed0.json', '1-seed1.json', '11-seed0.json', '11-seed1.json']
+    stamps = {p: p.stat().st_mtime_ns for p in (tmp_path / 'runs').iterdir()}
+    (tmp_path / 'runs' / '11-seed1.json').unlink()     # as if killed before it finished
+    lines = []
+    again = run_experiments('styles', tmp_path, only=[1, 11], **{**quiet, 'log': lines.append})
+    assert '3 runs done before, 1 to run' in lines[0]
+    for path, stamp in stamps.items():
+        if path.name != '11-seed1.json':
+            assert path.stat().st_mtime_ns == stamp      # not redone
+    strip = [{k: v for k, v in s.items() if k != 'timing'} for s in first]
+    assert [{k: v for k, v in s.items() if k != 'timing'} for s in again] == strip
+
+
+def test_runs_of_other_settings_are_refused_not_mixed(tmp_path):
+    """An --out holding runs of another budget is an error naming the file."""
+    run_experiments('styles', tmp_path, only=[11], seeds=1, scale=0.01, workers=1,
+                    log=lambda *a: None)
+    with pytest.raises(ConfigError, match=r'11-seed0.json: a run of other settings'):
+        run_experiments('styles', tmp_path, only=[11], seeds=1, scale=0.02, workers=1,
+                        log=lambda *a: None)
+
+
+@pytest.mark.parametrize('body,message', [
+    ('seeds: 0', r'seeds: expected a whole number in \[1,'),
+    ('seeds: -3', r'seeds: expected a whole number'),
+    ('seeds: .inf', r'seeds: expected a whole number'),
+    ('experiments: [{id: 1, problem: acrobot, delta: 0.1, method: ql, steps: .inf}]',
+     r'experiments\[0\].steps: expected a whole number'),
+    ('experiments: [{id: 1, problem: acrobot, delta: .nan, method: ql, steps: 10}]',
+     r'experiments\[0\].delta: expected a finite number'),
+    ('experiments: [{id: 1, problem: nope, delta: 0.1, method: ql, steps: 10}]', 'nope'),
+    ('experiments: [{id: 1, problem: acrobot, delta: 0.1, method: ga, steps: 10}]',
+     r'method: expected sapga or ql'),
+    ('experiments: ' + '[' * 200 + ']' * 200, 'nested deeper'),
+    ('experiments: 3', 'non-empty experiments list'),
+])
+def test_hostile_experiment_sets_are_one_line_errors(tmp_path, monkeypatch, body, message):
+    """Bad numbers, unknown names, deep nesting: a ConfigError naming the field."""
+    import shutil
+    from sim_nodes.problem import config_dir
+    conf = tmp_path / 'conf'
+    shutil.copytree(config_dir(), conf)
+    doc = 'name: bad\nseeds: 2\nexperiments: [{id: 1, problem: acrobot, delta: 0.1, ' \
+          'method: ql, steps: 10}]\n'
+    key = body.split(':')[0]
+    lines = [line for line in doc.splitlines() if not line.startswith(key + ':')]
+    (conf / 'experiments' / 'bad.yaml').write_text('\n'.join(lines + [body]) + '\n')
+    monkeypatch.setenv('SAPGA_CONFIG_DIR', str(conf))
+    with pytest.raises(ConfigError, match=message):
+        load_experiments('bad')
+
+
+@pytest.mark.parametrize('name', ['../x', '/etc/passwd', 'table2/../table2', '', 'a' * 300])
+def test_experiment_set_names_are_names_not_paths(name):
+    """A name that is a path (or not a known set) never reads a file outside the sets."""
+    with pytest.raises(ConfigError, match='unknown experiment set'):
+        load_experiments(name)

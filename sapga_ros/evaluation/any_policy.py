@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from sapga_ros.errors import SapgaError
+from sapga_ros.io.bounded import open_regular, read_bounded
 
 
 def load_any_policy(path: str):
@@ -14,15 +15,16 @@ def load_any_policy(path: str):
     from sapga_ros.exemplars.policy import MAX_POLICY_BYTES
     p = Path(path)
     try:
-        size = p.stat().st_size
+        with open_regular(p) as f:
+            head = f.read(4096)
     except OSError as exc:
-        raise SapgaError(f'{path}: cannot read ({exc.strerror})') from exc
-    if size > MAX_POLICY_BYTES:
-        return load_policy(p)  # refuses with the size message
-    with open(p, 'rb') as f:
-        head = f.read(4096)
+        raise SapgaError(f'{path}: cannot read ({exc.strerror or exc})') from exc
     if QFORMAT.encode() in head:
-        doc = parse_json(p.read_bytes(), str(p))
+        try:
+            data = read_bounded(p, MAX_POLICY_BYTES)
+        except OSError as exc:
+            raise SapgaError(f'{path}: cannot read ({exc.strerror or exc})') from exc
+        doc = parse_json(data, str(p))
         if isinstance(doc, dict) and doc.get('format') == QFORMAT:
             return qtable_from_document(doc, str(p))
     return load_policy(p)

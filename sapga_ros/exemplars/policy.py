@@ -23,6 +23,7 @@ import numpy as np
 from sapga_ros.errors import PolicyFileError, SapgaError
 from sapga_ros.exemplars.styles import STYLES, style_named
 from sapga_ros.io.atomic import write_atomic
+from sapga_ros.io.bounded import TooLarge, read_bounded
 from sim_nodes.problem import Problem, load_problem
 
 FORMAT = 'sapga-policy/1'
@@ -310,12 +311,10 @@ def load_policy(path: str | os.PathLike, problem: str | Problem | None = None) -
     """Read and validate a policy file (size-checked before it is read)."""
     path = Path(path)
     try:
-        size = path.stat().st_size
-        if size > MAX_POLICY_BYTES:
-            raise PolicyFileError(f'{path}: {size / 1e6:.1f} MB, larger than the '
-                                  f'{MAX_POLICY_BYTES // (1024 * 1024)} MB limit')
-        with open(path, 'rb') as f:
-            data = f.read(MAX_POLICY_BYTES + 1)
+        data = read_bounded(path, MAX_POLICY_BYTES)
+    except TooLarge:
+        raise PolicyFileError(f'{path}: larger than the '
+                              f'{MAX_POLICY_BYTES // (1024 * 1024)} MB limit') from None
     except OSError as exc:
-        raise PolicyFileError(f'{path}: cannot read ({exc.strerror})') from exc
+        raise PolicyFileError(f'{path}: cannot read ({exc.strerror or exc})') from exc
     return policy_from_json(data, problem, str(path))

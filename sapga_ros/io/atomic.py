@@ -7,6 +7,25 @@ from pathlib import Path
 from typing import BinaryIO, Callable
 
 
+def process_umask() -> int:
+    """The process's file mode creation mask, read without changing it.
+
+    ``os.umask`` can only be read by setting it, which races with every other thread that
+    creates a file meanwhile; Linux reports it in /proc/self/status.  Elsewhere the value
+    is set back at once (the old race, on systems that offer nothing better).
+    """
+    try:
+        with open('/proc/self/status', encoding='ascii') as f:
+            for line in f:
+                if line.startswith('Umask:'):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 def write_atomic(path: str | os.PathLike, content: str | bytes | Callable[[BinaryIO], None]
                  ) -> Path:
     """Write ``content`` (text, bytes, or a function writing to a binary file) to ``path``
@@ -15,9 +34,7 @@ def write_atomic(path: str | os.PathLike, content: str | bytes | Callable[[Binar
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f'.{path.name}.', dir=path.parent)
     try:
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # as open() would create it, not mkstemp's 0600
+        os.chmod(tmp, 0o666 & ~process_umask())  # as open() would make it, not mkstemp's 0600
         with os.fdopen(fd, 'wb') as f:
             if callable(content):
                 content(f)

@@ -1,180 +1,87 @@
-"""The paper's experiments (Table 2; SPEC 3.5): many seeds, measures against steps.
+"""The experiment engine (SPEC 3.5): many seeds of each experiment of a set, run in worker
+processes, each run's result written to ``DIR/runs/`` the moment it finishes.
 
-For each experiment and seed a run is trained (SAP-GA or Q-learning); its log gives, at
-every step count, the best evaluated value so far, delta* so far and whether delta was
-achieved.  The curves are resampled on a common grid of steps, averaged over seeds (mean
-and standard deviation), written to ``summary.json`` and drawn like the paper's Figures 3
-and 4.  Runs go to worker processes (one evaluation thread each).
+Rerunning with the same ``DIR`` skips the runs already there (resume after a kill); a run
+file of other settings is refused, never mixed in.  When every run is done the summaries
+(``summary.json``, ``summary.md``, ``runs.json``) and figures are written from the run files
+(``experiment_report``).  Each run is deterministic in its seed, so the order in which
+workers finish changes nothing.
 """
 from __future__ import annotations
 
 import json
 import math
+import multiprocessing
 import os
-import warnings
-from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass
+import sys
+import time
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from dataclasses import asdict
 from pathlib import Path
-
-import numpy as np
-import yaml
+from typing import Callable
 
 from sapga_ros.errors import ConfigError
-from sapga_ros.exemplars.styles import STYLES
-from sim_nodes.problem import config_dir, load_problem
+from sapga_ros.io.atomic import write_atomic
+from sapga_ros.io.bounded import read_bounded
+from sapga_ros.training.experiment_report import markdown_table, plot_summaries, summarise
+from sapga_ros.training.experiment_set import Experiment, load_experiments, run_one
 
-GRID_POINTS = 100
-
-
-@dataclass(frozen=True)
-class Experiment:
-    id: int
-    problem: str
-    delta: float
-    method: str
-    steps: int
-    style: str = 'state-action'            # exemplar style of a SAP-GA experiment
+MAX_RUN_BYTES = 64 << 20
 
 
-def load_experiments(name: str) -> tuple[list[Experiment], int]:
-    """Experiments and seed count of msg_configs/experiments/<name>.yaml."""
-    path = config_dir() / 'experiments' / f'{name}.yaml'
-    if not path.is_file():
-        known = sorted(p.stem for p in (config_dir() / 'experiments').glob('*.yaml'))
-        raise ConfigError(f'unknown experiment set {name!r} (known: {", ".join(known)})')
+def run_path(out: Path, exp: Experiment, seed: int) -> Path:
+    return out / 'runs' / f'{exp.id}-seed{seed}.json'
+
+
+def _finished(path: Path, key: dict) -> dict | None:
+    """The run stored at ``path`` if it is one of ``key``'s settings; None if absent."""
+    if not path.exists():
+        return None
     try:
-        doc = yaml.safe_load(path.read_text(encoding='utf-8'))
-        exps = [Experiment(int(e['id']), str(e['problem']), float(e['delta']),
-                           str(e['method']), int(e['steps']), str(e.get('style', 'state-action')))
-                for e in doc['experiments']]
-        seeds = int(doc.get('seeds', 20))
-    except (OSError, yaml.YAMLError, KeyError, TypeError, ValueError) as exc:
-        raise ConfigError(f'{path}: malformed experiment file ({exc})') from exc
-    for e in exps:
-        load_problem(e.problem)
-        if e.method not in ('sapga', 'ql') or e.steps <= 0 or not e.delta >= 0:
-            raise ConfigError(f'{path}: experiment {e.id}: bad method/steps/delta')
-        if e.style not in STYLES:
-            raise ConfigError(f'{path}: experiment {e.id}: unknown style {e.style[:40]!r} '
-                              f'(known: {", ".join(STYLES)})')
-    return exps, seeds
+        doc = json.loads(read_bounded(path, MAX_RUN_BYTES))
+    except (OSError, ValueError, RecursionError) as exc:
+        raise ConfigError(f'{path}: unreadable run file ({str(exc)[:80]}); remove it to '
+                          'run it again') from None
+    if not isinstance(doc, dict) or doc.get('key') != key or \
+            not isinstance(doc.get('run'), dict):
+        raise ConfigError(f'{path}: a run of other settings ({str(doc.get("key"))[:200]}), '
+                          f'not {key}; use another --out')
+    return doc['run']
 
 
-def _run_one(args: tuple) -> dict:
-    exp, seed, steps = args
-    from sapga_ros.training.ql_run import train_ql
-    from sapga_ros.optim.sapga import SapgaParams
-    from sapga_ros.training.loop import TrainConfig, train_sapga
-    cfg = TrainConfig(problem=exp.problem, method=exp.method, delta=exp.delta, steps=steps,
-                      seed=seed, jobs=1, params=SapgaParams(style=exp.style))
-    result = train_sapga(cfg) if exp.method == 'sapga' else train_ql(cfg)
-    hist = result.history
-    return {'seed': seed, 'steps': [r['steps'] for r in hist],
-            'best_value': [r['best_value'] for r in hist],
-            'delta_star': [r['delta_star'] for r in hist],
-            'final': {'best_value': hist[-1]['best_value'],
-                      'delta_star': hist[-1]['delta_star'],
-                      'achieved': hist[-1]['delta_star'] <= exp.delta,
-                      'steps_per_s': hist[-1]['steps_per_s']}}
+def _job(args: tuple) -> tuple[tuple, dict]:
+    exp, seed, budget = args
+    return args, run_one(exp, seed, budget)
 
 
-def resample(steps: list[int], values: list[float], grid: np.ndarray) -> np.ndarray:
-    """The logged value in force at each grid step (nan before the first log row)."""
-    idx = np.searchsorted(np.asarray(steps), grid, side='right') - 1
-    vals = np.asarray(values, dtype=float)
-    return np.where(idx >= 0, vals[np.clip(idx, 0, None)], np.nan)
+class _Progress:
+    """A bar over runs with ETA on a terminal (tqdm); a line per finished run otherwise."""
 
+    def __init__(self, total: int, done: int, log: Callable) -> None:
+        self.bar = None
+        self.log = log
+        self.total, self.done, self.start = total, done, time.perf_counter()
+        if sys.stderr.isatty() and log is print:
+            from tqdm import tqdm
+            self.bar = tqdm(total=total, initial=done, unit='run', file=sys.stderr)
 
-def _nulls(a: np.ndarray) -> list:
-    """A list for JSON: nan (no data) becomes null."""
-    return [None if not math.isfinite(v) else float(v) for v in a]
+    def step(self, text: str) -> None:
+        self.done += 1
+        if self.bar is not None:
+            self.bar.set_postfix_str(text)
+            self.bar.update(1)
+        else:
+            self.log(f'  run {self.done}/{self.total} done: {text}')
 
-
-def summarise(exp: Experiment, runs: list[dict], budget: int) -> dict:
-    grid = np.linspace(budget / GRID_POINTS, budget, GRID_POINTS)
-    best = np.array([resample(r['steps'], r['best_value'], grid) for r in runs])
-    dstar = np.array([resample(r['steps'], r['delta_star'], grid) for r in runs])
-    dstar = np.where(np.isfinite(dstar), dstar, np.nan)
-    achieved = (dstar <= exp.delta).astype(float)
-
-    def stat(a):
-        with warnings.catch_warnings():
-            warnings.simplefilter('ignore', RuntimeWarning)  # all-nan columns: no run yet
-            return {'mean': _nulls(np.nanmean(a, axis=0)), 'std': _nulls(np.nanstd(a, axis=0))}
-    finals = [r['final'] for r in runs]
-    return {'id': exp.id, 'problem': exp.problem, 'method': exp.method, 'delta': exp.delta,
-            'style': exp.style,
-            'steps': budget, 'seeds': [r['seed'] for r in runs], 'grid': grid.tolist(),
-            'best_value': stat(best), 'delta_star': stat(dstar),
-            'achieved_fraction': achieved.mean(axis=0).tolist(),
-            'final': {'best_value_mean': float(np.mean([f['best_value'] for f in finals])),
-                      'best_value_std': float(np.std([f['best_value'] for f in finals])),
-                      'delta_star_mean': float(np.mean([f['delta_star'] for f in finals])),
-                      'delta_star_std': float(np.std([f['delta_star'] for f in finals])),
-                      'achieved': int(sum(f['achieved'] for f in finals)),
-                      'steps_per_s_mean': float(np.mean([f.get('steps_per_s', math.nan)
-                                                         for f in finals])),
-                      'runs': len(finals)}}
-
-
-def markdown_table(summaries: list[dict]) -> str:
-    """The final measures of each experiment as a Markdown table."""
-    lines = ['| # | problem | delta | method | style | steps | achieved | best value | '
-             'delta* | steps/s (one run) |', '|---|---|---|---|---|---|---|---|---|---|']
-    for s in summaries:
-        f = s['final']
-        style = s.get('style', 'state-action') if s['method'] == 'sapga' else '-'
-        lines.append(f"| {s['id']} | {s['problem']} | {s['delta']} | {s['method']} | {style} "
-                     f"| {s['steps']:,d} | {f['achieved']}/{f['runs']} "
-                     f"| {f['best_value_mean']:.1f} ± {f['best_value_std']:.1f} "
-                     f"| {f['delta_star_mean']:.4f} ± {f['delta_star_std']:.4f} "
-                     f"| {f.get('steps_per_s_mean', math.nan) / 1e3:,.0f} k |")
-    return '\n'.join(lines) + '\n'
-
-
-def plot_summaries(summaries: list[dict], out: Path) -> list[Path]:
-    """One figure per problem: best value, delta* and achieved fraction against steps."""
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
-    paths = []
-    groups: dict[str, list[dict]] = {}
-    for s in summaries:
-        groups.setdefault(s['problem'].split('_')[0], []).append(s)
-    for family, items in groups.items():
-        fig, axes = plt.subplots(1, 3, figsize=(14, 4))
-        for s in items:
-            x = np.array(s['grid']) / 1e6
-            style = s.get('style', 'state-action')
-            label = (f"#{s['id']} {s['method'].upper()} {s['problem']} delta={s['delta']}"
-                     + (f' {style}' if style != 'state-action' else ''))
-            for ax, key in zip(axes[:2], ('best_value', 'delta_star')):
-                m = np.array(s[key]['mean'], dtype=float)
-                sd = np.array(s[key]['std'], dtype=float)
-                ax.plot(x, m, label=label)
-                ax.fill_between(x, m - sd, m + sd, alpha=0.2)
-            axes[2].plot(x, s['achieved_fraction'], label=label)
-        axes[0].set_ylabel('best evaluated value')
-        axes[1].set_ylabel('delta* so far')
-        if any(v is not None and v > 0 for s in items for v in s['delta_star']['mean']):
-            axes[1].set_yscale('log')
-        axes[2].set_ylabel('fraction of runs that achieved delta')
-        for ax in axes:
-            ax.set_xlabel('total steps [millions]')
-        axes[0].legend(fontsize=7)
-        fig.suptitle(f'{family}: mean and standard deviation over seeds')
-        fig.tight_layout()
-        path = out / f'{family}.png'
-        fig.savefig(path, dpi=100)
-        plt.close(fig)
-        paths.append(path)
-    return paths
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
 
 
 def run_experiments(name: str, out: str | os.PathLike, only: list[int] | None = None,
                     seeds: int | None = None, scale: float = 1.0,
                     workers: int | None = None, log=print) -> list[dict]:
-    """Run (a part of) an experiment set; write summary.json, runs.json and figures."""
+    """Run (a part of) an experiment set, resuming from ``out/runs``; write the summaries."""
     exps, default_seeds = load_experiments(name)
     if only:
         unknown = set(only) - {e.id for e in exps}
@@ -185,29 +92,67 @@ def run_experiments(name: str, out: str | os.PathLike, only: list[int] | None = 
     if not scale > 0 or not math.isfinite(scale):
         raise ConfigError(f'--scale must be a positive number, got {scale}')
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    workers = workers or os.cpu_count() or 1
+    (out / 'runs').mkdir(parents=True, exist_ok=True)
+    budgets = {e.id: max(1000, int(e.steps * scale)) for e in exps}
+    runs: dict[tuple[int, int], dict] = {}
+    pending = []
+    for exp in exps:
+        for seed in range(n_seeds):
+            key = {'set': name, 'experiment': asdict(exp), 'seed': seed,
+                   'steps': budgets[exp.id]}
+            run = _finished(run_path(out, exp, seed), key)
+            if run is None:
+                pending.append((exp, seed, budgets[exp.id]))
+            else:
+                runs[exp.id, seed] = run
+    log(f'{name}: {len(exps)} experiments x {n_seeds} seeds; {len(runs)} runs done before, '
+        f'{len(pending)} to run')
+    progress = _Progress(len(runs) + len(pending), len(runs), log)
+    try:
+        for (exp, seed, budget), run in _execute(pending, workers or os.cpu_count() or 1):
+            key = {'set': name, 'experiment': asdict(exp), 'seed': seed, 'steps': budget}
+            write_atomic(run_path(out, exp, seed), json.dumps({'key': key, 'run': run}))
+            runs[exp.id, seed] = run
+            progress.step(f"#{exp.id} seed {seed}: delta* {run['final']['delta_star']:.4f}")
+    finally:
+        progress.close()
+    return _summarise(exps, n_seeds, budgets, runs, out, log)
+
+
+def _execute(jobs: list[tuple], workers: int):
+    """(job, run) for each job as it finishes, in worker processes (or here, for 1)."""
+    if workers == 1 or len(jobs) <= 1:
+        for job in jobs:
+            yield _job(job)
+        return
+    # spawned, not forked: a fork of a process whose numba kernels already ran threads
+    # (OpenMP) is unsafe and is killed
+    context = multiprocessing.get_context('spawn')
+    with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=context) as pool:
+        futures = {pool.submit(_job, job) for job in jobs}
+        while futures:
+            finished, futures = wait(futures, return_when=FIRST_COMPLETED)
+            for future in finished:
+                yield future.result()
+
+
+def _summarise(exps, n_seeds, budgets, runs, out: Path, log) -> list[dict]:
     summaries, raw = [], {}
     for exp in exps:
-        budget = max(1000, int(exp.steps * scale))
-        log(f'experiment #{exp.id}: {exp.method} on {exp.problem}, delta {exp.delta}, '
-            f'{budget:,d} steps x {n_seeds} seeds')
-        jobs = [(exp, seed, budget) for seed in range(n_seeds)]
-        if workers == 1:
-            runs = [_run_one(j) for j in jobs]
-        else:
-            with ProcessPoolExecutor(max_workers=workers) as pool:
-                runs = list(pool.map(_run_one, jobs))
-        s = summarise(exp, runs, budget)
+        exp_runs = [runs[exp.id, seed] for seed in range(n_seeds)]
+        s = summarise(exp, exp_runs, budgets[exp.id])
         f = s['final']
-        log(f"  achieved {f['achieved']}/{f['runs']}, best value {f['best_value_mean']:.1f} "
-            f"+- {f['best_value_std']:.1f}, delta* {f['delta_star_mean']:.4f} "
-            f"+- {f['delta_star_std']:.4f}")
+        style = exp.style if exp.method == 'sapga' else ''
+        log(f'#{exp.id} {exp.method} {style} on {exp.problem}, delta {exp.delta}, '
+            f'{budgets[exp.id]:,d} steps: achieved '
+            f"{f['achieved']}/{f['runs']}, best value {f['best_value_mean']:.1f} +- "
+            f"{f['best_value_std']:.1f}, delta* {f['delta_star_mean']:.4f} +- "
+            f"{f['delta_star_std']:.4f}")
         summaries.append(s)
-        raw[str(exp.id)] = runs
-    (out / 'summary.json').write_text(json.dumps(summaries, indent=1))
-    (out / 'summary.md').write_text(markdown_table(summaries))
-    (out / 'runs.json').write_text(json.dumps(raw))
+        raw[str(exp.id)] = exp_runs
+    write_atomic(out / 'summary.json', json.dumps(summaries, indent=1))
+    write_atomic(out / 'summary.md', markdown_table(summaries))
+    write_atomic(out / 'runs.json', json.dumps(raw))
     for path in plot_summaries(summaries, out):
         log(f'figure: {path}')
     return summaries
