@@ -59,7 +59,7 @@ def inspect_summary(path: str, plot: str | None = None, episode: int | None = No
         title = (f'{problem.name}: episode {fmt(ep["episode"], "d")}, {ep["end"]}, '
                  f'return {fmt(ep["return"], ".2f")}, delta* {fmt(ep["delta_star"], ".4f")}')
         try:
-            plot_episode(episodes[i], problem, plot, title)
+            plot_episode(episodes[i], problem, plot, title, ep['goal_delta'])
         except OSError as exc:
             raise McapError(f'{plot}: cannot write the plot ({exc.strerror})') from exc
         summary['plot'] = {'file': plot, 'episode': ep['episode']}
