@@ -115,3 +115,14 @@ def test_experiment_set_names_are_names_not_paths(name):
     """A name that is a path (or not a known set) never reads a file outside the sets."""
     with pytest.raises(ConfigError, match='unknown experiment set'):
         load_experiments(name)
+
+
+def test_the_ray_backend_gives_the_local_backends_summaries(tmp_path):
+    """On a local Ray instance the runs are the same runs: summaries identical to local."""
+    quiet = {'only': [1, 11], 'seeds': 2, 'scale': 0.005, 'workers': 2, 'log': lambda *a: None}
+    local = run_experiments('styles', tmp_path / 'local', **quiet)
+    ray = run_experiments('styles', tmp_path / 'ray', backend='ray', **quiet)
+    strip = [{k: v for k, v in s.items() if k != 'timing'} for s in local]
+    assert [{k: v for k, v in s.items() if k != 'timing'} for s in ray] == strip
+    assert sorted(p.name for p in (tmp_path / 'ray' / 'runs').iterdir()) == sorted(
+        p.name for p in (tmp_path / 'local' / 'runs').iterdir())

@@ -80,8 +80,14 @@ class _Progress:
 
 def run_experiments(name: str, out: str | os.PathLike, only: list[int] | None = None,
                     seeds: int | None = None, scale: float = 1.0,
-                    workers: int | None = None, log=print) -> list[dict]:
-    """Run (a part of) an experiment set, resuming from ``out/runs``; write the summaries."""
+                    workers: int | None = None, log=print, backend: str = 'local',
+                    address: str | None = None) -> list[dict]:
+    """Run (a part of) an experiment set, resuming from ``out/runs``; write the summaries.
+
+    ``backend``: ``local`` (worker processes on this machine) or ``ray`` (tasks of the Ray
+    cluster at ``address``; a local Ray instance when it is None)."""
+    if backend not in ('local', 'ray'):
+        raise ConfigError(f'unknown backend {str(backend)[:40]!r} (known: local, ray)')
     exps, default_seeds = load_experiments(name)
     if only:
         unknown = set(only) - {e.id for e in exps}
@@ -109,7 +115,8 @@ def run_experiments(name: str, out: str | os.PathLike, only: list[int] | None = 
         f'{len(pending)} to run')
     progress = _Progress(len(runs) + len(pending), len(runs), log)
     try:
-        for (exp, seed, budget), run in _execute(pending, workers or os.cpu_count() or 1):
+        for (exp, seed, budget), run in _execute(pending, workers or os.cpu_count() or 1,
+                                                 backend, address):
             key = {'set': name, 'experiment': asdict(exp), 'seed': seed, 'steps': budget}
             write_atomic(run_path(out, exp, seed), json.dumps({'key': key, 'run': run}))
             runs[exp.id, seed] = run
@@ -119,8 +126,13 @@ def run_experiments(name: str, out: str | os.PathLike, only: list[int] | None = 
     return _summarise(exps, n_seeds, budgets, runs, out, log)
 
 
-def _execute(jobs: list[tuple], workers: int):
-    """(job, run) for each job as it finishes, in worker processes (or here, for 1)."""
+def _execute(jobs: list[tuple], workers: int, backend: str = 'local',
+             address: str | None = None):
+    """(job, run) for each job as it finishes: in worker processes (``local``; here, for
+    one worker) or as tasks of a Ray cluster (``ray``)."""
+    if backend == 'ray':
+        yield from _execute_ray(jobs, workers, address)
+        return
     if workers == 1 or len(jobs) <= 1:
         for job in jobs:
             yield _job(job)
@@ -134,6 +146,31 @@ def _execute(jobs: list[tuple], workers: int):
             finished, futures = wait(futures, return_when=FIRST_COMPLETED)
             for future in finished:
                 yield future.result()
+
+
+def _execute_ray(jobs: list[tuple], workers: int, address: str | None):
+    """The jobs as Ray tasks (one CPU each): on the cluster at ``address``, or on a local
+    Ray instance started here with ``workers`` CPUs and stopped at the end.  Every node of
+    a cluster needs this package installed (the tasks import it)."""
+    if not jobs:
+        return
+    import ray
+    started = not ray.is_initialized()
+    if started:
+        if address:
+            ray.init(address=address, log_to_driver=False)
+        else:
+            ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
+    try:
+        task = ray.remote(num_cpus=1, max_retries=2)(_job)
+        pending = [task.remote(job) for job in jobs]
+        while pending:
+            finished, pending = ray.wait(pending, num_returns=1)
+            for ref in finished:
+                yield ray.get(ref)
+    finally:
+        if started:
+            ray.shutdown()
 
 
 def _summarise(exps, n_seeds, budgets, runs, out: Path, log) -> list[dict]:
