@@ -11,7 +11,8 @@ from sapga_ros.errors import CheckpointError, PolicyFileError
 from sapga_ros.exemplars.policy import ExemplarPolicy, policy_from_json
 from sapga_ros.recording.events import parse_event
 from sapga_ros.optim.sapga import SapgaParams
-from sapga_ros.training.loop import TrainConfig, _pack, _unpack, train_sapga
+from sapga_ros.optim.population import pack, unpack
+from sapga_ros.training.loop import TrainConfig, train_sapga
 from sim_nodes.problem import load_problem
 from sim_nodes.ros.sim_node import check_setting
 
@@ -58,16 +59,16 @@ def test_damaged_checkpoint_population_is_refused():
     """Action indices out of range or non-finite states in a checkpoint are refused."""
     pr = load_problem('acrobot')
     rng = np.random.default_rng(0)
-    from sapga_ros.optim.sapga import Individual
+    from sapga_ros.optim.population import Individual
     pop = [Individual(ExemplarPolicy(pr, rng.uniform(pr.low, pr.high, (5, 4)), [0, 1, 2, 0, 1]))]
-    arrays = _pack(pop, 'pop')
+    arrays = pack(pop, 'pop')
     arrays['pop_actions'][0] = 7
     with pytest.raises(CheckpointError, match='out of range'):
-        _unpack(pr, arrays, 'pop')
-    arrays = _pack(pop, 'pop')
+        unpack(pr, arrays, 'pop')
+    arrays = pack(pop, 'pop')
     arrays['pop_states'][1, 2] = np.nan
     with pytest.raises(CheckpointError, match='non-finite'):
-        _unpack(pr, arrays, 'pop')
+        unpack(pr, arrays, 'pop')
 
 
 def test_unwritable_outputs_are_refused_before_training(tmp_path):

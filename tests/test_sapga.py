@@ -33,7 +33,8 @@ def test_family_alternation_keeps_best_and_evaluates_only_unknown_members():
     batch = ga.ask()
     assert len(batch) == SMALL.n_pop + SMALL.n_pop // 2 * SMALL.n_child  # all unknown
     families = ga._families
-    ga.tell(ev.evaluate(batch))
+    r = ev.evaluate(batch)
+    ga.tell(r.returns, r.delta_star, r.steps, r.reached, r.used)
     for i, j, members in families:
         star = max(members, key=lambda m: m.value)
         assert ga.population[i] is star

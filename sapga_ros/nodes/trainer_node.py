@@ -1,33 +1,17 @@
 """Trainer node: SAP-GA (or the Q-learning baseline) offline, served over ROS 2 (SPEC 4).
 
-Training runs in a background thread with the fast batch evaluator (``train_sapga`` /
-``train_ql``), never over ROS topics; the node reports progress on ``/diagnostics``, writes
-checkpoints and the best policy file, and serves the best policy so far on ``get_policy``.
+Training runs in a background thread through the one training loop (``training.loop.train``,
+with the fast batch evaluator), never over ROS topics; the node reports progress on
+``/diagnostics``, writes checkpoints and the best policy file, and serves the best policy so
+far on ``get_policy``.
 
-Parameters (msg_configs/params/trainer_node.yaml; a change applies to the next run):
-
-==================  ========  ==========  =====================================================
-name                type      default     meaning
-==================  ========  ==========  =====================================================
-problem             string    acrobot     msg_configs/<problem>.yaml (read-only)
-method              string    sapga       ``sapga`` or ``ql`` (tabular Q-learning baseline)
-delta               double    -1.0        goal difficulty; < 0 or NaN: the problem's default
-steps               integer   30000000    budget of MDP steps simulated
-seed                integer   0           seed of every random choice of the run
-jobs                integer   0           evaluation threads; 0: every core
-out                 string    ''          best policy file (SAP-GA: sapga-policy/1, QL:
-                                          sapga-qtable/1), log beside it (.log.csv); '': none
-checkpoint          string    ''          checkpoint directory; '': none
-checkpoint_every    integer   20          SAP-GA generations between checkpoints
-resume              bool      false       continue from the checkpoint in ``checkpoint``
-train_on_start      bool      false       start a run when the node starts
-policy_file         string    ''          policy served on ``get_policy`` until training
-                                          improves on nothing yet ('' = none)
-n_pop, n_child,     integer   100, 10,    SAP-GA N_pop, N_child, L_min, L_max (paper 4.3)
-l_min, l_max                  50, 100
-diagnostics_period  double    1.0         [s] between /diagnostics messages
-log_period          double    5.0         [s] between progress lines in the log
-==================  ========  ==========  =====================================================
+Parameters (msg_configs/params/trainer_node.yaml; docs/ros_interface.md has the table):
+generated from the config dataclasses by ``sapga_ros.nodes.trainer_params`` -- the run's
+``method``, ``steps``, ``seed``, ``jobs``, ``checkpoint_every``, ``resume``, SAP-GA's
+``n_pop``, ``n_child``, ``l_min``, ``l_max``, ``style``, Q-learning's ``chunk_steps``, the
+node's ``out``, ``train_on_start``, ``policy_file``, ``diagnostics_period``, ``log_period``
+-- plus ``problem`` (read-only), ``delta`` and ``checkpoint``.  A change applies to the next
+run.
 
 Services (std_srvs/Trigger):
 
@@ -43,13 +27,12 @@ key values ``state`` (idle | training | done | failed), ``steps``, ``budget``,
 (SAP-GA), ``episodes`` (QL), ``method``, ``seed``, ``served`` (source of the served policy),
 ``out``; published every ``diagnostics_period`` and at once when the state changes.
 
-Shutdown (Ctrl-C, SIGTERM) stops a SAP-GA run after its current generation (``should_stop``)
-and still writes the best policy so far and the checkpoint; a Q-learning run stops at its
-next progress report (every 1 M steps), keeping its last checkpoint.
+Shutdown (Ctrl-C, SIGTERM) stops a run after its current round (``should_stop``: a SAP-GA
+generation, a Q-learning chunk of ``chunk_steps``) and still writes the best policy so far
+and the checkpoint.
 """
 from __future__ import annotations
 
-import inspect
 import math
 import threading
 import time
@@ -60,6 +43,7 @@ from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from std_srvs.srv import Trigger
@@ -67,63 +51,16 @@ from std_srvs.srv import Trigger
 from sapga_ros.errors import ConfigError, SapgaError
 from sim_nodes.ros.common import run_node, steady_clock
 from sapga_ros.exemplars.policy import ExemplarPolicy, load_policy
-from sapga_ros.optim.sapga import SapgaParams
+from sapga_ros.nodes.trainer_params import PROBLEM, check_setting, parameters, train_config
 from sapga_ros.training.loop import TrainConfig
 from sim_nodes.problem import Problem, load_problem
 
-METHODS = ('sapga', 'ql')
 STATES = ('idle', 'training', 'done', 'failed')
 SAVE_PERIOD_S = 5.0     # [s] at most this often the improving best policy is written in a run
 JOIN_TIMEOUT_S = 120.0  # [s] shutdown waits this long for the run to stop and save
 QL_NOT_SERVABLE = ('method ql learns a Q-table (sapga-qtable/1), not an exemplar policy: the '
                    'policy node cannot run it (evaluate the out file with `sapga eval`; '
                    'train with method sapga to deploy)')
-
-# name -> (default, description); the order is the declaration order
-PARAMETERS: dict[str, tuple[Any, str]] = {
-    'method': ('sapga', 'sapga or ql'),
-    'delta': (-1.0, 'goal difficulty; < 0 or NaN: the problem default'),
-    'steps': (30_000_000, 'budget of MDP steps simulated'),
-    'seed': (0, 'random seed of the run'),
-    'jobs': (0, 'evaluation threads; 0: every core'),
-    'out': ('', 'best policy file to write; empty: none'),
-    'checkpoint': ('', 'checkpoint directory; empty: none'),
-    'checkpoint_every': (20, 'SAP-GA generations between checkpoints'),
-    'resume': (False, 'continue from the checkpoint'),
-    'train_on_start': (False, 'start training when the node starts'),
-    'policy_file': ('', 'policy served until training has a best; empty: none'),
-    'n_pop': (100, 'SAP-GA N_pop'),
-    'n_child': (10, 'SAP-GA N_child'),
-    'l_min': (50, 'SAP-GA L_min'),
-    'l_max': (100, 'SAP-GA L_max'),
-    'diagnostics_period': (1.0, '[s] between /diagnostics messages'),
-    'log_period': (5.0, '[s] between progress lines in the log'),
-}
-
-
-class TrainingStopped(Exception):
-    """Raised inside a run (from its progress callback) that must stop now."""
-
-
-def check_setting(name: str, value: Any) -> str | None:
-    """Why ``value`` is not acceptable for parameter ``name``, or None."""
-    if name == 'method' and value not in METHODS:
-        return f'method: expected one of {", ".join(METHODS)}, got {value!r}'
-    if name == 'delta':
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            return f'delta: expected a number, got {value!r}'
-        if value == math.inf:
-            return 'delta: expected a finite number (< 0 or NaN: the problem default)'
-    if name in ('steps', 'n_pop', 'n_child', 'l_min', 'l_max', 'checkpoint_every') and value < 1:
-        return f'{name}: expected an integer >= 1, got {value}'
-    if name == 'n_pop' and value < 2:
-        return f'n_pop: expected an integer >= 2, got {value}'
-    if name in ('seed', 'jobs') and value < 0:
-        return f'{name}: expected an integer >= 0, got {value}'
-    if name in ('diagnostics_period', 'log_period') and not (math.isfinite(value)
-                                                             and 1e-3 <= value <= 3600):
-        return f'{name}: expected seconds in [0.001, 3600], got {value}'
-    return None
 
 
 @dataclass(frozen=True)
@@ -140,13 +77,16 @@ class TrainerNode(Node):
 
     def __init__(self, node_name: str = 'trainer_node', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
-        name = self.declare_parameter('problem', 'acrobot', ParameterDescriptor(
-            description='msg_configs/<problem>.yaml', read_only=True)).value
+        name = self.declare_parameter('problem', PROBLEM[0], ParameterDescriptor(
+            description=PROBLEM[1], read_only=True)).value
         self.problem: Problem = load_problem(name)
-        for key, (default, description) in PARAMETERS.items():
-            self.declare_parameter(key, default, ParameterDescriptor(
-                description=description, dynamic_typing=key == 'delta'))
-        for key in PARAMETERS:
+        table = parameters()
+        try:
+            for key, (default, descriptor) in table.items():
+                self.declare_parameter(key, default, descriptor)
+        except ParameterException as exc:      # a value outside the descriptor's range
+            raise ConfigError(f'{self.get_name()}: parameter {exc}') from exc
+        for key in table:
             reason = check_setting(key, self.get_parameter(key).value)
             if reason:
                 raise ConfigError(f'{self.get_name()}: parameter {reason}')
@@ -201,16 +141,9 @@ class TrainerNode(Node):
     def train_config(self) -> TrainConfig:
         """The run the current parameters describe (``SapgaError`` if inconsistent)."""
         get = lambda key: self.get_parameter(key).value  # noqa: E731
-        if get('l_min') > get('l_max'):
-            raise ConfigError(f'l_min {get("l_min")} is larger than l_max {get("l_max")}')
         if get('resume') and not get('checkpoint'):
             raise ConfigError('resume needs a checkpoint directory (parameter checkpoint)')
-        return TrainConfig(problem=self.problem.name, method=get('method'), delta=self._delta(),
-                           steps=get('steps'), seed=get('seed'), jobs=get('jobs'),
-                           checkpoint=get('checkpoint') or None,
-                           checkpoint_every=get('checkpoint_every'), resume=get('resume'),
-                           params=SapgaParams(n_pop=get('n_pop'), n_child=get('n_child'),
-                                              l_min=get('l_min'), l_max=get('l_max')))
+        return train_config(get, self.problem.name, self._delta())
 
     def _serve_file(self, path: str) -> None:
         policy = load_policy(path, self.problem)   # PolicyFileError names what is wrong
@@ -298,18 +231,11 @@ class TrainerNode(Node):
     # the run (training thread) --------------------------------------------------------------
 
     def _run(self, config: TrainConfig, out: str) -> None:
-        from sapga_ros.training.loop import write_log
-        from sapga_ros.training.ql_run import train_ql
-        from sapga_ros.training.loop import train_sapga
+        from sapga_ros.training.loop import train, write_log
         try:
-            if config.method == 'sapga':
-                # stop only after a generation: a run always has a best policy to save
-                result = train_sapga(config, (), self._on_progress, self._on_best,
-                                     lambda: self._stop.is_set() and bool(self._history))
-            elif 'should_stop' in inspect.signature(train_ql).parameters:
-                result = train_ql(config, self._on_progress, should_stop=self._stop.is_set)
-            else:
-                result = train_ql(config, self._on_progress)
+            # stop only after a round: a run always has a best policy to save
+            result = train(config, (), self._on_progress, self._on_best,
+                           lambda: self._stop.is_set() and bool(self._history))
             if config.method == 'sapga':
                 self._served = Served(result.policy, 'training')
             if out:
@@ -321,9 +247,6 @@ class TrainerNode(Node):
                 f'done{stopped}: best value {meta["value"]:.3f}, policy delta* '
                 f'{meta["delta_star"]:.4f}, run delta* {meta["run_delta_star"]:.4f}, '
                 f'{meta["steps"]} steps' + (f'; policy: {out}' if out else '')))
-        except TrainingStopped:
-            self._set_status(state='done', message='stopped before the end (Q-learning '
-                                                   'keeps its last checkpoint only)')
         except SapgaError as exc:
             self._set_status(state='failed', message=f'training failed: {exc}')
         except OSError as exc:
@@ -362,8 +285,6 @@ class TrainerNode(Node):
             self._say('info', f'steps {st["steps"]:,d} / {st["budget"]:,d}  best '
                               f'{st["best_value"]:.3f}  delta* {st["delta_star"]:.4f}  '
                               f'{st["steps_per_s"] / 1e6:.2f} M steps/s')
-        if self._stop.is_set() and self.status()['method'] == 'ql':
-            raise TrainingStopped()
 
     # status and diagnostics -----------------------------------------------------------------
 

@@ -32,7 +32,6 @@ from sim_nodes.models.dispatch import step_lanes
 from sim_nodes.problem import Problem, load_problem
 
 FORMAT = 'sapga-qtable/1'
-CHUNK_STEPS = 1_000_000  # steps between progress reports / checkpoint opportunities
 
 
 @kernel(inline='always')

@@ -1,11 +1,12 @@
 """SAP-GA: exemplar-based policy search with a genetic algorithm (paper section 3; SPEC 3.2).
 
-The optimizer speaks ask/tell (as pycma and evosax do): ``ask()`` pairs the population at
-random into families, makes N_child children per family by uniform exemplar crossover, and
-returns every family member without a known value; the caller evaluates them (all
-families of a generation in one parallel batch: families are disjoint, so this equals
-processing them one by one) and hands the results to ``tell()``, which keeps each family's
-best member pi* in one parent's place and a refreshed clone of pi* in the other's.
+The optimizer speaks ask/tell (``sapga_ros.optim.base``, as pycma and evosax do): ``ask()``
+pairs the population at random into families, makes N_child children per family by uniform
+exemplar crossover, and returns every family member without a known value; the caller
+evaluates them (all families of a generation in one parallel batch: families are disjoint,
+so this equals processing them one by one) and hands the results to ``tell()``, which keeps
+each family's best member pi* in one parent's place and a refreshed clone of pi* in the
+other's.
 
 Fixed strategy parameters live in ``SapgaParams``; the changing state (population, values,
 generator, counters) is what a checkpoint saves (``state_dict`` / ``from_state``).
@@ -13,50 +14,42 @@ generator, counters) is what a checkpoint saves (``state_dict`` / ``from_state``
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from sapga_ros.evaluation.evaluator import BatchResult
-from sapga_ros.optim.operators import random_policy, refresh, uniform_crossover
+from sapga_ros.errors import CheckpointError, ConfigError
 from sapga_ros.exemplars.policy import ExemplarPolicy
-from sapga_ros.exemplars.styles import style_named
+from sapga_ros.exemplars.styles import STYLES
+from sapga_ros.optim.base import Optimizer, Result, State
+from sapga_ros.optim.operators import random_policy, refresh, uniform_crossover
+from sapga_ros.optim.population import Individual, pack, unpack
+from sapga_ros.optim.settings import check, setting
 from sim_nodes.problem import Problem
+
+COUNT = 1_000_000                          # most policies, children or exemplars a setting asks
 
 
 @dataclass(frozen=True)
 class SapgaParams:
     """SAP-GA strategy parameters (paper 4.3 defaults)."""
 
-    n_pop: int = 100                       # N_pop, policies in the population
-    n_child: int = 10                      # N_child, children per family
-    l_min: int = 50                        # L_min, fewest exemplars in a policy
-    l_max: int = 100                       # L_max, most exemplars in a policy
+    n_pop: int = setting(100, 'N_pop, policies in the population', flag='--pop', low=2,
+                         high=COUNT)
+    n_child: int = setting(10, 'N_child, children per family', flag='--children', low=1,
+                           high=COUNT)
+    l_min: int = setting(50, 'L_min, fewest exemplars in a policy', low=1, high=COUNT)
+    l_max: int = setting(100, 'L_max, most exemplars in a policy', low=1, high=COUNT)
     crossover_rate: tuple = (0.3, 0.7)     # range of r in uniform exemplar crossover
     refresh_rate: tuple = (0.0, 0.5)       # range of r in the refresh operator
     max_tries: int = 100                   # crossover attempts before a child is repaired
-    style: str = 'state-action'            # exemplar style (sapga_ros.exemplars.styles)
+    style: str = setting('state-action', 'exemplar style of the policies evolved: ' + '; '.join(
+        f'{s.name}: {s.summary}' for s in STYLES.values()), choices=tuple(STYLES))
 
     def __post_init__(self) -> None:
-        if self.n_pop < 2 or self.n_child < 1 or not 1 <= self.l_min <= self.l_max:
-            raise ValueError(f'invalid SAP-GA parameters: {self}')
-        style_named(self.style)
-
-
-@dataclass
-class Individual:
-    """A policy and what its last evaluation found (value nan: not evaluated yet)."""
-
-    policy: ExemplarPolicy
-    value: float = math.nan                # f(pi): accumulated reward of its episode
-    delta_star: float = math.inf
-    steps: int = 0                         # MDP steps of its episode
-    reached: bool = False
-    used: np.ndarray | None = None         # exemplars referred to in that episode
-
-    @property
-    def known(self) -> bool:
-        return not math.isnan(self.value)
+        check(self)
+        if self.l_min > self.l_max:
+            raise ConfigError(f'l_min {self.l_min} is larger than l_max {self.l_max}')
 
 
 @dataclass
@@ -65,23 +58,25 @@ class Stats:
 
     generation: int = 0
     steps: int = 0                         # MDP steps simulated (the paper's total steps)
+    best_value: float = -math.inf          # best evaluated value so far
+    delta_star: float = math.inf           # min delta(s) over every state reached so far
     evaluations: int = 0
     repairs: int = 0                       # children repaired after max_tries (SPEC 3.2)
     refreshed: int = 0                     # exemplars re-drawn by the refresh operator
-    best_value: float = -math.inf          # best evaluated value so far
-    delta_star: float = math.inf           # min delta(s) over every state reached so far
 
 
 @dataclass
-class SapGA:
+class SapGA(Optimizer):
     """The SAP-GA optimizer for one problem."""
+
+    method = 'sapga'
 
     problem: Problem
     params: SapgaParams
     rng: np.random.Generator
     population: list[Individual]
     stats: Stats = field(default_factory=Stats)
-    best: Individual | None = None
+    best: Individual | None = None         # the best evaluated member so far
     _families: list | None = None
     _pending: list | None = None
 
@@ -125,18 +120,21 @@ class SapGA:
         self._families, self._pending = families, pending
         return [m.policy for m in pending]
 
-    def tell(self, result: BatchResult) -> None:
+    def tell(self, returns: np.ndarray, delta_star: np.ndarray, steps: np.ndarray,
+             reached: np.ndarray, used: list[np.ndarray]) -> None:
         """Take the evaluations of ``ask()``'s policies, in order; replace the parents."""
-        if self._families is None or len(result.returns) != len(self._pending):
+        if self._families is None or not \
+                len(returns) == len(delta_star) == len(steps) == len(reached) == len(used) \
+                == len(self._pending):
             raise RuntimeError('tell() needs the results of the last ask(), in order')
         st = self.stats
         for k, m in enumerate(self._pending):
-            value = float(result.returns[k])
+            value = float(returns[k])
             m.value = value if math.isfinite(value) else -math.inf  # NaN ranks worst
-            m.delta_star = float(result.delta_star[k])
-            m.steps = int(result.steps[k])
-            m.reached = bool(result.reached[k])
-            m.used = result.used[k]
+            m.delta_star = float(delta_star[k])
+            m.steps = int(steps[k])
+            m.reached = bool(reached[k])
+            m.used = used[k]
             st.steps += m.steps
             st.evaluations += 1
             st.delta_star = min(st.delta_star, m.delta_star)
@@ -156,6 +154,53 @@ class SapGA:
         st.generation += 1
         self._families = self._pending = None
 
-    def stop(self, budget: int) -> dict:
-        """Termination reasons met (empty: go on)."""
-        return {'budget': budget} if self.stats.steps >= budget else {}
+    @property
+    def steps(self) -> int:
+        return self.stats.steps
+
+    @property
+    def iteration(self) -> int:
+        return self.stats.generation
+
+    @property
+    def result(self) -> Result | None:
+        best = self.best
+        if best is None:
+            return None
+        st = self.stats
+        return Result(best.policy.subset(slice(None)), {
+            'value': best.value, 'delta_star': best.delta_star, 'steps_to_end': best.steps,
+            'reached': best.reached, 'run_delta_star': st.delta_star, 'steps': st.steps,
+            'generations': st.generation, 'method': self.method,
+            'trainer': asdict(self.params)})
+
+    def counters(self) -> dict:
+        return asdict(self.stats)
+
+    @staticmethod
+    def settings(problem: Problem, params: SapgaParams) -> dict:
+        return {'params': asdict(params)}
+
+    def state_dict(self) -> State:
+        arrays = pack(self.population, 'pop')
+        if self.best is not None:
+            arrays.update(pack([self.best], 'best'))
+        return {'stats': asdict(self.stats), 'rng': self.rng.bit_generator.state}, arrays
+
+    @classmethod
+    def from_state(cls, problem: Problem, params: SapgaParams, state: State,
+                   **run: object) -> 'SapGA':
+        meta, arrays = state
+        rng = np.random.default_rng()
+        try:
+            rng.bit_generator.state = meta['rng']
+            stats = Stats(**meta['stats'])
+        except (KeyError, TypeError, ValueError) as exc:
+            raise CheckpointError(f'malformed run state ({exc})') from exc
+        population = unpack(problem, arrays, 'pop', params.style)
+        if len(population) != params.n_pop:
+            raise CheckpointError(f'population of {len(population)}, expected {params.n_pop}')
+        ga = cls(problem, params, rng, population, stats)
+        if 'best_lengths' in arrays:
+            ga.best = unpack(problem, arrays, 'best', params.style)[0]
+        return ga

@@ -1,0 +1,89 @@
+"""The members of a SAP-GA population and their checkpoint form (SPEC 3.2).
+
+``pack`` lays a list of individuals out as flat arrays (exemplar records concatenated, one
+length per policy); ``unpack`` reads them back, refusing counts that do not add up,
+non-finite states and action indices out of range (a checkpoint is read without pickle and
+trusted no further than that).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from sapga_ros.errors import CheckpointError, SapgaError
+from sapga_ros.exemplars.policy import ExemplarPolicy
+from sim_nodes.problem import Problem
+
+
+@dataclass
+class Individual:
+    """A policy and what its last evaluation found (value nan: not evaluated yet)."""
+
+    policy: ExemplarPolicy
+    value: float = math.nan                # f(pi): accumulated reward of its episode
+    delta_star: float = math.inf
+    steps: int = 0                         # MDP steps of its episode
+    reached: bool = False
+    used: np.ndarray | None = None         # exemplars referred to in that episode
+
+    @property
+    def known(self) -> bool:
+        return not math.isnan(self.value)
+
+
+def pack(individuals: list[Individual], prefix: str) -> dict[str, np.ndarray]:
+    """The arrays ``prefix``_* of a checkpoint holding ``individuals``."""
+    dim = individuals[0].policy.problem.dim if individuals else 0
+    used = [m.used if m.used is not None else np.zeros(len(m.policy), np.bool_)
+            for m in individuals]
+    return {
+        f'{prefix}_states': np.concatenate([m.policy.states for m in individuals]).reshape(
+            -1, dim),
+        f'{prefix}_actions': np.concatenate([m.policy.actions for m in individuals]),
+        f'{prefix}_exemplar_values': np.concatenate([m.policy.values for m in individuals]),
+        f'{prefix}_states2': np.concatenate([m.policy.states2 for m in individuals]),
+        f'{prefix}_lengths': np.array([len(m.policy) for m in individuals], dtype=np.int64),
+        f'{prefix}_values': np.array([m.value for m in individuals]),
+        f'{prefix}_delta_star': np.array([m.delta_star for m in individuals]),
+        f'{prefix}_steps': np.array([m.steps for m in individuals], dtype=np.int64),
+        f'{prefix}_reached': np.array([m.reached for m in individuals], dtype=np.bool_),
+        f'{prefix}_has_used': np.array([m.used is not None for m in individuals]),
+        f'{prefix}_used': np.concatenate(used),
+    }
+
+
+def unpack(problem: Problem, arrays: dict[str, np.ndarray], prefix: str,
+           style: str = 'state-action') -> list[Individual]:
+    """The individuals ``pack`` wrote; CheckpointError if the arrays are inconsistent."""
+    try:
+        values = arrays.get(f'{prefix}_exemplar_values')
+        states2 = arrays.get(f'{prefix}_states2')
+        lengths = arrays[f'{prefix}_lengths']
+        states, actions = arrays[f'{prefix}_states'], arrays[f'{prefix}_actions']
+        used = arrays[f'{prefix}_used']
+        if lengths.dtype.kind not in 'iu' or np.any(lengths < 1) or \
+                lengths.sum() != len(actions) or len(states) != len(actions) or \
+                len(used) != len(actions):
+            raise ValueError('exemplar counts do not add up')
+        if not np.all(np.isfinite(states)) or np.any(actions < 0) or \
+                np.any(actions >= len(problem.actions)):
+            raise ValueError('non-finite states or action indices out of range')
+        bounds = np.concatenate([[0], np.cumsum(lengths)])
+        out = []
+        for k in range(len(lengths)):
+            a, b = bounds[k], bounds[k + 1]
+            policy = ExemplarPolicy(
+                problem, states[a:b], actions[a:b], style=style,
+                values=None if values is None else values[a:b],
+                states2=None if states2 is None or not states2.shape[1] else states2[a:b])
+            marks = used[a:b].copy() if arrays[f'{prefix}_has_used'][k] else None
+            out.append(Individual(policy, float(arrays[f'{prefix}_values'][k]),
+                                  float(arrays[f'{prefix}_delta_star'][k]),
+                                  int(arrays[f'{prefix}_steps'][k]),
+                                  bool(arrays[f'{prefix}_reached'][k]), marks))
+        return out
+    except (KeyError, IndexError, TypeError, ValueError, SapgaError) as exc:
+        raise CheckpointError(f'checkpoint population {prefix!r} is inconsistent ({exc})') \
+            from exc
