@@ -27,6 +27,7 @@ RANKS = {
     'sapga_ros.errors': 1, 'sapga_ros.io': 1,
     'sapga_ros.exemplars': 2, 'sapga_ros.evaluation': 2, 'sapga_ros.optim': 2,
     'sapga_ros.training': 3, 'sapga_ros.recording': 3, 'sapga_ros.analysis': 3,
+    'sapga_ros.gym': 3,
     'sapga_ros.nodes': 4, 'sapga_ros.launch': 4,
     'sapga_ros.cli': 5, 'sapga_ros.bench': 5, 'sapga_ros.viz': 5,
     'sapga_ros': 1,  # the package itself: __version__
