@@ -40,6 +40,16 @@ def goal_arrays(problem):
     return problem.best_state, inv_scale, np.array(problem.goal_fixed, dtype=np.float64)
 
 
+def alt_goal_arrays(problem):
+    """(inv_scale, fixed) of the problem's alternative goal reading; empty arrays if none
+    (the kernels then measure no alternative delta*)."""
+    if problem.goal_alt_scale is None:
+        return np.zeros(0), np.zeros(0)
+    scale = np.array(problem.goal_alt_scale, dtype=np.float64)
+    inv_scale = np.where(np.isnan(scale), 0.0, 1.0 / np.where(np.isnan(scale), 1.0, scale))
+    return inv_scale, np.array(problem.goal_fixed, dtype=np.float64)
+
+
 def delta_of(problem, s) -> float:
     """delta(s) of one state (a convenience around ``goal_delta``)."""
     return float(goal_delta(np.asarray(s, dtype=np.float64), *goal_arrays(problem),

@@ -112,6 +112,7 @@ class Problem:
     ql_eta: float
     reward_range: tuple[float, float] | None = None  # one MDP step's reward [low, high]
     via_point_radius: float = 0.3               # normalised distance reaching a via-point
+    goal_alt_scale: tuple[float, ...] | None = None  # another reading of goal.scale, measured
     ros: dict[str, Any] = field(default_factory=dict, compare=False)
     source: str = ''
 
@@ -269,6 +270,13 @@ def parse_problem(doc: Any, source: str) -> Problem:
     for i, (s, f) in enumerate(zip(goal_scale, goal_fixed)):
         if math.isnan(s) == math.isinf(f):
             raise ConfigError(f'{source}: goal: coordinate {i} needs exactly one of scale, fixed')
+    alt_scale = None
+    if goal.get('alternative_scale') is not None:
+        alt_scale = _optional_numbers(goal['alternative_scale'],
+                                      f'{source}: goal.alternative_scale', dim, math.nan)
+        if any(math.isnan(a) != math.isnan(s) for a, s in zip(alt_scale, goal_scale)):
+            raise ConfigError(f'{source}: goal.alternative_scale: null exactly where '
+                              'goal.scale is null')
     substeps = _integer(_require(episode, 'substeps', f'{source}: episode'),
                         f'{source}: episode.substeps', 1)
     n_step = _integer(_require(episode, 'n_step', f'{source}: episode'),
@@ -293,7 +301,7 @@ def parse_problem(doc: Any, source: str) -> Problem:
                                   f'{source}: q_learning.tiles_per_dim', 1),
         ql_epsilon=parse_number(ql.get('epsilon', 0.02), f'{source}: q_learning.epsilon'),
         ql_eta=parse_number(ql.get('eta', 0.02), f'{source}: q_learning.eta'),
-        reward_range=reward_range,
+        reward_range=reward_range, goal_alt_scale=alt_scale,
         via_point_radius=parse_number(styles.get('via_point_radius', 0.3),
                                       f'{source}: exemplars.via_point_radius'),
         ros=ros, source=source)

@@ -48,3 +48,23 @@ def test_q_learning_greedy_episode_equals_the_engine():
         assert np.array_equal(greedy.rewards, engine.rewards)
         assert (greedy.ret, greedy.steps, greedy.delta_star, greedy.reached) == (
             engine.ret, engine.steps, engine.delta_star, engine.reached)
+
+
+def test_the_alternative_goal_reading_is_measured_beside_the_printed_one():
+    """PDIP: the engine's delta* under |v| <= 32 delta is the minimum over the episode's
+    states of that reading's delta(s), never above the printed box's delta*; problems
+    without an alternative reading measure none."""
+    from sapga_ros.analysis.limit import with_goal_scale
+    from sapga_ros.optim.operators import random_exemplars
+    from sim_nodes.goal import delta_of
+    problem = load_problem('pdip')
+    alt = with_goal_scale(problem, {'v': 32.0})
+    assert problem.goal_alt_scale == alt.goal_scale
+    policies = [random_exemplars(problem, 60, np.random.default_rng(k)) for k in range(6)]
+    ev = Evaluator(problem, 0.05)
+    batch = ev.evaluate(policies)
+    for k, policy in enumerate(policies):
+        ep = ev.episode(policy)
+        want = min(delta_of(alt, s) for s in ep.states)
+        assert batch.delta_star_alt[k] == want <= batch.delta_star[k]
+    assert Evaluator(load_problem('acrobot')).evaluate(policies[:0]).delta_star_alt is None

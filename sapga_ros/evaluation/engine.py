@@ -35,8 +35,12 @@ BLOCKS_PER_THREAD = 4  # shares of a batch per thread, for load balance
 @kernel
 def run_share(model, style, ex, ex2, act, val, lengths, first, stop, s0, p, inv_range,
               is_angle, best, inv_scale, fixed, delta, n_step, actions, radius2, goal_u,
-              returns, steps, dstar, reached, used, tr_state, tr_idx, tr_act, tr_reward):
+              alt_inv_scale, alt_fixed, returns, steps, dstar, dstar_alt, reached, used,
+              tr_state, tr_idx, tr_act, tr_reward):
     """Evaluate policies first..stop-1 on LANES lanes.
+
+    ``dstar_alt`` is delta* under an alternative reading of the goal box (alt_inv_scale,
+    alt_fixed; measured only, never ending an episode); empty alt arrays: not measured.
 
     If ``tr_state`` has n_step + 1 rows, policy 0's episode is traced: its states (the
     initial one first), the exemplar index and action value chosen at each step and each
@@ -54,6 +58,7 @@ def run_share(model, style, ex, ex2, act, val, lengths, first, stop, s0, p, inv_
     pol = np.full(LANES, -1)                  # policy on each lane; -1: idle
     progress = np.zeros(LANES, dtype=np.int64)  # the selector's per-episode state
     trace = tr_state.shape[0] > n_step
+    alt = alt_inv_scale.shape[0] > 0
     for lane in range(LANES):
         S[:, lane] = s0
     nxt = first
@@ -66,6 +71,8 @@ def run_share(model, style, ex, ex2, act, val, lengths, first, stop, s0, p, inv_
                 returns[nxt] = 0.0
                 steps[nxt] = 0
                 dstar[nxt] = goal_delta(s0, best, inv_scale, fixed, is_angle)
+                if alt:
+                    dstar_alt[nxt] = goal_delta(s0, best, alt_inv_scale, alt_fixed, is_angle)
                 reached[nxt] = False
                 if trace and nxt == 0:
                     tr_state[0, :] = s0
@@ -93,6 +100,10 @@ def run_share(model, style, ex, ex2, act, val, lengths, first, stop, s0, p, inv_
             d = goal_delta(S[:, lane], best, inv_scale, fixed, is_angle)
             if d < dstar[k]:
                 dstar[k] = d
+            if alt:
+                d_alt = goal_delta(S[:, lane], best, alt_inv_scale, alt_fixed, is_angle)
+                if d_alt < dstar_alt[k]:
+                    dstar_alt[k] = d_alt
             if trace and k == 0:
                 tr_state[steps[k], :] = S[:, lane]
                 tr_reward[steps[k] - 1] = r[lane]
@@ -107,8 +118,9 @@ def run_share(model, style, ex, ex2, act, val, lengths, first, stop, s0, p, inv_
 
 @kernel(parallel=True)
 def evaluate_batch(model, style, ex, ex2, act, val, lengths, s0, p, inv_range, is_angle,
-                   best, inv_scale, fixed, delta, n_step, actions, radius2, goal_u, shares,
-                   returns, steps, dstar, reached, used):
+                   best, inv_scale, fixed, delta, n_step, actions, radius2, goal_u,
+                   alt_inv_scale, alt_fixed, shares, returns, steps, dstar, dstar_alt,
+                   reached, used):
     """Evaluate policies ex[k, :, :lengths[k]] in ``shares`` parallel shares (untraced)."""
     count = ex.shape[0]
     no_state = np.zeros((1, s0.shape[0]))
@@ -119,4 +131,5 @@ def evaluate_batch(model, style, ex, ex2, act, val, lengths, s0, p, inv_range, i
         stop = (b + 1) * count // shares
         run_share(model, style, ex, ex2, act, val, lengths, first, stop, s0, p, inv_range,
                   is_angle, best, inv_scale, fixed, delta, n_step, actions, radius2, goal_u,
-                  returns, steps, dstar, reached, used, no_state, no_idx, no_val, no_val)
+                  alt_inv_scale, alt_fixed, returns, steps, dstar, dstar_alt, reached, used,
+                  no_state, no_idx, no_val, no_val)

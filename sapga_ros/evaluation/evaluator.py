@@ -17,7 +17,7 @@ from sapga_ros.exemplars.distance import normalize_states
 from sapga_ros.exemplars.policy import ExemplarPolicy
 from sapga_ros.exemplars.styles import STYLES
 from sim_nodes.models import model_id
-from sim_nodes.goal import goal_arrays
+from sim_nodes.goal import alt_goal_arrays, goal_arrays
 from sim_nodes.problem import Problem
 
 
@@ -30,6 +30,7 @@ class BatchResult:
     delta_star: np.ndarray  # min delta(s) over the states reached
     reached: np.ndarray     # ended in S_delta
     used: list              # per policy: bool (L,), exemplars referred to
+    delta_star_alt: np.ndarray | None = None  # delta* under the alternative goal reading
 
 
 @dataclass(frozen=True)
@@ -74,6 +75,7 @@ class Evaluator:
         self.inv_range = 1.0 / self.ranges
         self.is_angle = problem.is_angle
         self.goal = goal_arrays(problem)
+        self.alt_goal = alt_goal_arrays(problem)
         self.s0 = problem.initial_state
         self.actions = problem.action_values
         self.radius2 = problem.via_point_radius ** 2
@@ -82,7 +84,7 @@ class Evaluator:
 
     def _consts(self):
         return (self.s0, self.params, self.inv_range, self.is_angle, *self.goal, self.delta,
-                self.n_step, self.actions, self.radius2, self.goal_u)
+                self.n_step, self.actions, self.radius2, self.goal_u, *self.alt_goal)
 
     def pack(self, policies: list[ExemplarPolicy]):
         """(style number, ex, ex2, act, val, lengths): padded (P, D, Lmax) normalised
@@ -115,19 +117,21 @@ class Evaluator:
         returns = np.empty(count)
         steps = np.empty(count, dtype=np.int64)
         dstar = np.empty(count)
+        dstar_alt = np.full(count, np.nan)
         reached = np.zeros(count, dtype=np.bool_)
         used = np.zeros(act.shape, dtype=np.bool_)
         if count:
             shares = max(1, min(count, numba.get_num_threads() * BLOCKS_PER_THREAD))
             evaluate_batch(self.model, style, ex, ex2, act, val, lengths, *self._consts(),
-                           shares, returns, steps, dstar, reached, used)
+                           shares, returns, steps, dstar, dstar_alt, reached, used)
         return BatchResult(returns, steps, dstar, reached,
-                           [used[k, :n].copy() for k, n in enumerate(lengths)])
+                           [used[k, :n].copy() for k, n in enumerate(lengths)],
+                           dstar_alt if len(self.alt_goal[0]) else None)
 
     def episode(self, policy: ExemplarPolicy) -> Episode:
         """Run ``policy`` once from the initial state and record the trajectory."""
         style, ex, ex2, act, val, lengths = self.pack([policy])
-        returns, dstar = np.zeros(1), np.zeros(1)
+        returns, dstar, dstar_alt = np.zeros(1), np.zeros(1), np.zeros(1)
         steps = np.zeros(1, dtype=np.int64)
         reached = np.zeros(1, dtype=np.bool_)
         used = np.zeros(act.shape, dtype=np.bool_)
@@ -136,7 +140,8 @@ class Evaluator:
         tr_act = np.zeros(self.n_step)
         tr_reward = np.zeros(self.n_step)
         run_share(self.model, style, ex, ex2, act, val, lengths, 0, 1, *self._consts(),
-                  returns, steps, dstar, reached, used, tr_state, tr_idx, tr_act, tr_reward)
+                  returns, steps, dstar, dstar_alt, reached, used, tr_state, tr_idx, tr_act,
+                  tr_reward)
         n = int(steps[0])
         return Episode(tr_state[:n + 1].copy(), tr_act[:n].copy(), tr_idx[:n].copy(),
                        tr_reward[:n].copy(), float(returns[0]), n, float(dstar[0]),
