@@ -90,7 +90,7 @@ def test_runs_of_other_settings_are_refused_not_mixed(tmp_path):
      r'experiments\[0\].delta: expected a finite number'),
     ('experiments: [{id: 1, problem: nope, delta: 0.1, method: ql, steps: 10}]', 'nope'),
     ('experiments: [{id: 1, problem: acrobot, delta: 0.1, method: ga, steps: 10}]',
-     r'method: expected sapga or ql'),
+     r'method: expected one of sapga, ql, cmaes'),
     ('experiments: ' + '[' * 200 + ']' * 200, 'nested deeper'),
     ('experiments: 3', 'non-empty experiments list'),
 ])
@@ -126,3 +126,39 @@ def test_the_ray_backend_gives_the_local_backends_summaries(tmp_path):
     assert [{k: v for k, v in s.items() if k != 'timing'} for s in ray] == strip
     assert sorted(p.name for p in (tmp_path / 'ray' / 'runs').iterdir()) == sorted(
         p.name for p in (tmp_path / 'local' / 'runs').iterdir())
+
+
+def test_table2_writes_a_report_that_report_rewrites(tmp_path, capsys):
+    """`sapga experiment table2` ends with report.md: the paper's claim beside each row, the
+    physical limits, Figures 3-7; `sapga experiment report DIR` writes it again from the
+    directory alone."""
+    from sapga_ros.cli import main as cli
+    out = tmp_path / 't2'
+    assert cli.main(['experiment', 'table2', '--out', str(out), '--seeds', '2',
+                     '--scale', '0.005', '--workers', '1']) == 0
+    report = (out / 'report.md').read_text()
+    assert '| #4 | pdip, δ = 0.01 | SAP-GA |' in report and 'reaches δ' in report
+    assert report.count('| pdip | ') == 2 and '## Physical limits' in report
+    for figure in ('acrobot.png', 'pdip.png', 'figure5_mountain_car.png',
+                   'figure6_acrobot.png', 'figure7_pdip.png'):
+        assert f']({figure})' in report and (out / figure).stat().st_size > 10_000
+    info = json.loads((out / 'experiment.json').read_text())
+    assert info['runs_run'] == 8 and info['command'].startswith('sapga experiment table2')
+    (out / 'report.md').unlink()
+    capsys.readouterr()
+    assert cli.main(['experiment', 'report', str(out)]) == 0
+    assert (out / 'report.md').read_text() == report
+    assert cli.main(['experiment', 'report', str(tmp_path)]) == 2
+    assert 'no summary.json' in capsys.readouterr().err
+
+
+def test_sapga_limit_reports_and_writes_its_sequence(tmp_path, capsys):
+    """`sapga limit` prints the smallest delta found and writes the action sequence."""
+    from sapga_ros.cli import main as cli
+    capsys.readouterr()
+    assert cli.main(['limit', '--problem', 'pdip', '--width', '300', '--json', '--out',
+                     str(tmp_path / 'l.json')]) == 0
+    shown = json.loads(capsys.readouterr().out)
+    stored = json.loads((tmp_path / 'l.json').read_text())
+    assert shown['delta'] == stored['delta'] and len(stored['actions']) == stored['step']
+    assert cli.main(['limit', '--problem', 'acrobot', '--alternative-goal']) == 2

@@ -8,7 +8,10 @@
     sapga bench [--json] [--ros [--problem P]]
     sapga inspect BAG [--json] [--plot OUT.png] [--episode N]
     sapga bag reindex BAG
-    sapga experiment [table2] --out DIR [--only 2,4] [--seeds N] [--scale F]
+    sapga experiment NAME --out DIR [--only 2,4] [--seeds N] [--scale F] [--workers W]
+                     [--backend local|ray] [--address ADDR]
+    sapga experiment report DIR
+    sapga limit --problem P [--alternative-goal] [--width W] [--json] [--out FILE]
     sapga launch NAME ...
 
 User errors (bad files, unknown problems, invalid numbers) print one line naming what is
@@ -22,8 +25,9 @@ import math
 import sys
 from pathlib import Path
 
-from sapga_ros.cli.args import (check_output_file, delta_value, episode_steps,
-                                nonneg_int, positive_int)
+from sapga_ros.cli.args import check_output_file, delta_value, episode_steps
+from sapga_ros.cli.experiment import (add_experiment_arguments, add_limit_arguments,
+                                      cmd_experiment, cmd_limit)
 from sapga_ros.cli.recordings import (add_bag_arguments, add_inspect_arguments, cmd_bag,
                                       cmd_inspect)
 from sapga_ros.cli.train import add_train_arguments, cmd_train
@@ -70,16 +74,10 @@ def build_parser() -> argparse.ArgumentParser:
         'inspect', help='summarise (and plot) a recording: a bag directory or an MCAP file'))
     add_bag_arguments(sub.add_parser('bag', help='recording maintenance: bag reindex BAG'))
 
-    ex = sub.add_parser('experiment', help='run the paper\'s experiments (Table 2)')
-    ex.add_argument('name', nargs='?', default='table2',
-                    help='msg_configs/experiments/<name>.yaml (default table2)')
-    ex.add_argument('--out', required=True, help='directory for summary.json and figures')
-    ex.add_argument('--only', help='comma-separated experiment ids, e.g. 2,4')
-    ex.add_argument('--seeds', type=positive_int, help='seeds per experiment (default 20)')
-    ex.add_argument('--scale', type=delta_value, default=1.0,
-                    help='multiply every step budget (e.g. 0.1 for a quick look)')
-    ex.add_argument('--workers', type=nonneg_int, default=0,
-                    help='parallel runs (default 0: every core)')
+    add_experiment_arguments(sub.add_parser(
+        'experiment', help='run an experiment set (table2, styles, ...) or write its report'))
+    add_limit_arguments(sub.add_parser(
+        'limit', help='the smallest delta any action sequence reaches (open-loop search)'))
 
     la = sub.add_parser('launch', help='start a group of nodes (swingup, train_deploy)',
                         add_help=False)
@@ -179,18 +177,6 @@ def _bench_styles(args) -> int:
     return 0
 
 
-def cmd_experiment(args) -> int:
-    from sapga_ros.training.experiments import run_experiments
-    only = None
-    if args.only:
-        try:
-            only = [int(x) for x in args.only.split(',') if x.strip()]
-        except ValueError:
-            raise SapgaError(f'--only: expected comma-separated ids, got {args.only!r}')
-    run_experiments(args.name, args.out, only, args.seeds, args.scale, args.workers or None)
-    return 0
-
-
 def cmd_launch(args) -> int:
     from sapga_ros.launch import run_launch
     return run_launch(args.name or '--help', args.args)
@@ -198,7 +184,7 @@ def cmd_launch(args) -> int:
 
 COMMANDS = {'train': cmd_train, 'eval': cmd_eval, 'exemplars': cmd_exemplars,
             'bench': cmd_bench, 'inspect': cmd_inspect, 'bag': cmd_bag, 'launch': cmd_launch,
-            'experiment': cmd_experiment}
+            'experiment': cmd_experiment, 'limit': cmd_limit}
 
 
 def main(argv: list[str] | None = None) -> int:

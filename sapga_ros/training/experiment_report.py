@@ -38,20 +38,45 @@ def summarise(exp: Experiment, runs: list[dict], budget: int) -> dict:
             warnings.simplefilter('ignore', RuntimeWarning)  # all-nan columns: no run yet
             return {'mean': _nulls(np.nanmean(a, axis=0)), 'std': _nulls(np.nanstd(a, axis=0))}
     finals = [r['final'] for r in runs]
+    final = {'best_value_mean': float(np.mean([f['best_value'] for f in finals])),
+             'best_value_std': float(np.std([f['best_value'] for f in finals])),
+             'delta_star_mean': float(np.mean([f['delta_star'] for f in finals])),
+             'delta_star_std': float(np.std([f['delta_star'] for f in finals])),
+             'achieved': int(sum(f['achieved'] for f in finals)),
+             'runs': len(finals),
+             'best_value_ci95': bootstrap_ci([f['best_value'] for f in finals]),
+             'delta_star_ci95': bootstrap_ci([f['delta_star'] for f in finals])}
+    for key in ('delta_star_alt', 'greedy_delta_star'):
+        values = [f[key] for f in finals if f.get(key) is not None]
+        if len(values) == len(finals):
+            final.update({f'{key}_mean': float(np.mean(values)),
+                          f'{key}_std': float(np.std(values)),
+                          f'{key}_ci95': bootstrap_ci(values)})
+            if key == 'delta_star_alt':
+                final['achieved_alt'] = int(sum(v <= exp.delta for v in values))
     return {'id': exp.id, 'problem': exp.problem, 'method': exp.method, 'delta': exp.delta,
-            'style': exp.style,
+            'style': exp.style, 'paper': exp.paper, 'group': exp.group,
             'steps': budget, 'seeds': [r['seed'] for r in runs], 'grid': grid.tolist(),
             'best_value': stat(best), 'delta_star': stat(dstar),
-            'achieved_fraction': achieved.mean(axis=0).tolist(),
-            'final': {'best_value_mean': float(np.mean([f['best_value'] for f in finals])),
-                      'best_value_std': float(np.std([f['best_value'] for f in finals])),
-                      'delta_star_mean': float(np.mean([f['delta_star'] for f in finals])),
-                      'delta_star_std': float(np.std([f['delta_star'] for f in finals])),
-                      'achieved': int(sum(f['achieved'] for f in finals)),
-                      'runs': len(finals)},
+            'achieved_fraction': achieved.mean(axis=0).tolist(), 'final': final,
             # wall-clock speed of the runs: the one measure that differs between machines
             'timing': {'steps_per_s_mean': float(np.mean([f.get('steps_per_s', math.nan)
-                                                          for f in finals]))}}
+                                                          for f in finals])),
+                       'seconds_total': float(sum(r.get('seconds', math.nan)
+                                                  for r in runs))}}
+
+
+def bootstrap_ci(values: list[float], level: float = 0.95, resamples: int = 10_000,
+                 seed: int = 0) -> list[float] | None:
+    """Percentile bootstrap interval of the mean (seeded: the same runs, the same interval);
+    None for fewer than two finite values."""
+    x = np.asarray([v for v in values if v is not None and math.isfinite(v)], dtype=float)
+    if len(x) < 2:
+        return None
+    rng = np.random.default_rng(seed)
+    means = x[rng.integers(0, len(x), size=(resamples, len(x)))].mean(axis=1)
+    tail = (1.0 - level) / 2
+    return [float(np.quantile(means, tail)), float(np.quantile(means, 1.0 - tail))]
 
 
 def markdown_table(summaries: list[dict]) -> str:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import re
+import time
 from dataclasses import dataclass
 from typing import Any
 
@@ -15,6 +16,7 @@ from sapga_ros.io.bounded import load_yaml, read_bounded
 from sim_nodes.problem import config_dir, load_problem
 
 MAX_SET_BYTES = 1 << 20
+METHODS = ('sapga', 'ql', 'cmaes')
 MAX_SEEDS = 10_000
 MAX_STEPS = 10 ** 12
 _NAME_RE = re.compile(r'^[a-z0-9][a-z0-9_-]*$')
@@ -30,6 +32,8 @@ class Experiment:
     method: str
     steps: int
     style: str = 'state-action'            # exemplar style of a SAP-GA experiment
+    paper: str = ''                        # what the paper reports for this row
+    group: str = 'paper'                   # paper | ablation | peer (report sections)
 
 
 def _count(value: Any, where: str, low: int, high: int) -> int:
@@ -54,18 +58,54 @@ def _experiment(e: Any, where: str) -> Experiment:
     exp = Experiment(_count(e['id'], f'{where}.id', 0, MAX_SEEDS), str(e['problem'])[:80],
                      float(delta), str(e['method'])[:40],
                      _count(e['steps'], f'{where}.steps', 1, MAX_STEPS),
-                     str(e.get('style', 'state-action'))[:40])
+                     str(e.get('style', 'state-action'))[:40], str(e.get('paper', ''))[:300],
+                     str(e.get('group', 'paper'))[:40])
     load_problem(exp.problem)
-    if exp.method not in ('sapga', 'ql'):
-        raise ConfigError(f'{where}.method: expected sapga or ql, got {exp.method!r}')
+    if exp.method not in METHODS:
+        raise ConfigError(f'{where}.method: expected one of {", ".join(METHODS)}, '
+                          f'got {exp.method!r}')
     if exp.style not in STYLES:
         raise ConfigError(f'{where}.style: unknown style {exp.style!r} '
                           f'(known: {", ".join(STYLES)})')
     return exp
 
 
-def load_experiments(name: str) -> tuple[list[Experiment], int]:
-    """Experiments and seed count of msg_configs/experiments/<name>.yaml."""
+@dataclass(frozen=True)
+class LimitSearch:
+    """A physical-limit search to run with a set (``sapga_ros.analysis.limit``)."""
+
+    problem: str
+    alternative_goal: bool = False
+    width: int = 50_000
+    cells: int = 32
+    per_cell: int = 4
+
+    @property
+    def file_name(self) -> str:
+        return f'{self.problem}{"-alternative" if self.alternative_goal else ""}.json'
+
+
+def load_limits(name: str) -> list[LimitSearch]:
+    """The ``limits`` of experiment set ``name`` (none if it lists none)."""
+    path = config_dir() / 'experiments' / f'{name}.yaml'
+    doc = _set_document(name)
+    out = []
+    for i, e in enumerate(doc.get('limits') or []):
+        where = f'{path}: limits[{i}]'
+        if not isinstance(e, dict) or not isinstance(e.get('problem'), str):
+            raise ConfigError(f'{where}: expected a mapping with a problem')
+        search = LimitSearch(e['problem'][:80], bool(e.get('alternative_goal', False)),
+                             _count(e.get('width', 50_000), f'{where}.width', 1, 10 ** 7),
+                             _count(e.get('cells', 32), f'{where}.cells', 1, 1000),
+                             _count(e.get('per_cell', 4), f'{where}.per_cell', 1, 1000))
+        if search.alternative_goal and load_problem(search.problem).goal_alt_scale is None:
+            raise ConfigError(f'{where}: {search.problem} has no alternative goal reading')
+        out.append(search)
+    return out
+
+
+def _set_document(name: str) -> dict:
+    """The parsed YAML of experiment set ``name`` (a known name, never a path)."""
     folder = config_dir() / 'experiments'
     known = sorted(p.stem for p in folder.glob('*.yaml'))
     if not isinstance(name, str) or not _NAME_RE.match(name) or name not in known:
@@ -79,6 +119,13 @@ def load_experiments(name: str) -> tuple[list[Experiment], int]:
     if not isinstance(doc, dict) or not isinstance(doc.get('experiments'), list) or \
             not doc['experiments']:
         raise ConfigError(f'{path}: expected a mapping with a non-empty experiments list')
+    return doc
+
+
+def load_experiments(name: str) -> tuple[list[Experiment], int]:
+    """Experiments and seed count of msg_configs/experiments/<name>.yaml."""
+    doc = _set_document(name)
+    path = config_dir() / 'experiments' / f'{name}.yaml'
     exps = [_experiment(e, f'{path}: experiments[{i}]')
             for i, e in enumerate(doc['experiments'])]
     if len({e.id for e in exps}) != len(exps):
@@ -87,19 +134,34 @@ def load_experiments(name: str) -> tuple[list[Experiment], int]:
 
 
 def run_one(exp: Experiment, seed: int, steps: int) -> dict:
-    """Train one run of ``exp`` with ``seed`` on ``steps`` (one evaluation thread); its log
-    and final measures."""
-    from sapga_ros.optim.sapga import SapgaParams
-    from sapga_ros.training.loop import TrainConfig, train_sapga
-    from sapga_ros.training.ql_run import train_ql
-    cfg = TrainConfig(problem=exp.problem, method=exp.method, delta=exp.delta, steps=steps,
-                      seed=seed, jobs=1, params=SapgaParams(style=exp.style))
-    result = train_sapga(cfg) if exp.method == 'sapga' else train_ql(cfg)
-    hist = result.history
-    return {'seed': seed, 'steps': [r['steps'] for r in hist],
-            'best_value': [r['best_value'] for r in hist],
-            'delta_star': [r['delta_star'] for r in hist],
-            'final': {'best_value': hist[-1]['best_value'],
-                      'delta_star': hist[-1]['delta_star'],
-                      'achieved': hist[-1]['delta_star'] <= exp.delta,
-                      'steps_per_s': hist[-1]['steps_per_s']}}
+    """Train one run of ``exp`` with ``seed`` on ``steps`` (one evaluation thread): its log,
+    final measures and best policy (exemplar policies: the policy file's JSON document)."""
+    from sapga_ros.evaluation.evaluator import set_jobs
+    start = time.perf_counter()
+    if exp.method == 'cmaes':
+        from sapga_ros.optim.cmaes import train_cmaes
+        set_jobs(1)
+        policy, hist = train_cmaes(exp.problem, exp.delta, steps, seed)
+    else:
+        from sapga_ros.optim.sapga import SapgaParams
+        from sapga_ros.training.loop import TrainConfig, train
+        cfg = TrainConfig(problem=exp.problem, method=exp.method, delta=exp.delta,
+                          steps=steps, seed=seed, jobs=1, params=SapgaParams(style=exp.style))
+        result = train(cfg)
+        policy, hist = result.policy, result.history
+    last = hist[-1]
+    final = {'best_value': last['best_value'], 'delta_star': last['delta_star'],
+             'achieved': last['delta_star'] <= exp.delta,
+             'steps_per_s': last['steps'] / max(time.perf_counter() - start, 1e-9)}
+    if last.get('delta_star_alt') is not None:
+        final['delta_star_alt'] = last['delta_star_alt']
+    run = {'seed': seed, 'steps': [r['steps'] for r in hist],
+           'best_value': [r['best_value'] for r in hist],
+           'delta_star': [r['delta_star'] for r in hist], 'final': final,
+           'seconds': time.perf_counter() - start}
+    if exp.method == 'ql':
+        final['greedy_delta_star'] = policy.meta.get('delta_star')
+        final['greedy_value'] = policy.meta.get('value')
+    else:
+        run['policy'] = policy.to_document()
+    return run

@@ -24,13 +24,21 @@ from sapga_ros.errors import ConfigError
 from sapga_ros.io.atomic import write_atomic
 from sapga_ros.io.bounded import read_bounded
 from sapga_ros.training.experiment_report import markdown_table, plot_summaries, summarise
-from sapga_ros.training.experiment_set import Experiment, load_experiments, run_one
+from sapga_ros.training.experiment_set import (Experiment, LimitSearch, load_experiments,
+                                               load_limits, run_one)
 
 MAX_RUN_BYTES = 64 << 20
 
 
 def run_path(out: Path, exp: Experiment, seed: int) -> Path:
     return out / 'runs' / f'{exp.id}-seed{seed}.json'
+
+
+def run_key(name: str, exp: Experiment, seed: int, budget: int) -> dict:
+    """What a run's result depends on (not the row's description): a stored run is reused
+    only for the same key."""
+    settings = {k: v for k, v in asdict(exp).items() if k not in ('paper', 'group')}
+    return {'set': name, 'experiment': settings, 'seed': seed, 'steps': budget}
 
 
 def _finished(path: Path, key: dict) -> dict | None:
@@ -99,13 +107,13 @@ def run_experiments(name: str, out: str | os.PathLike, only: list[int] | None = 
         raise ConfigError(f'--scale must be a positive number, got {scale}')
     out = Path(out)
     (out / 'runs').mkdir(parents=True, exist_ok=True)
+    (out / 'limits').mkdir(exist_ok=True)
     budgets = {e.id: max(1000, int(e.steps * scale)) for e in exps}
     runs: dict[tuple[int, int], dict] = {}
     pending = []
     for exp in exps:
         for seed in range(n_seeds):
-            key = {'set': name, 'experiment': asdict(exp), 'seed': seed,
-                   'steps': budgets[exp.id]}
+            key = run_key(name, exp, seed, budgets[exp.id])
             run = _finished(run_path(out, exp, seed), key)
             if run is None:
                 pending.append((exp, seed, budgets[exp.id]))
@@ -113,17 +121,52 @@ def run_experiments(name: str, out: str | os.PathLike, only: list[int] | None = 
                 runs[exp.id, seed] = run
     log(f'{name}: {len(exps)} experiments x {n_seeds} seeds; {len(runs)} runs done before, '
         f'{len(pending)} to run')
+    started = time.perf_counter()
+    reused = len(runs)
     progress = _Progress(len(runs) + len(pending), len(runs), log)
     try:
         for (exp, seed, budget), run in _execute(pending, workers or os.cpu_count() or 1,
                                                  backend, address):
-            key = {'set': name, 'experiment': asdict(exp), 'seed': seed, 'steps': budget}
+            key = run_key(name, exp, seed, budget)
             write_atomic(run_path(out, exp, seed), json.dumps({'key': key, 'run': run}))
             runs[exp.id, seed] = run
             progress.step(f"#{exp.id} seed {seed}: delta* {run['final']['delta_star']:.4f}")
     finally:
         progress.close()
+    for search in load_limits(name):
+        _limit(out, search, scale, log)
+    command = ' '.join(['sapga experiment', name, '--out', str(out)]
+                       + (['--only', ','.join(map(str, only))] if only else [])
+                       + (['--seeds', str(seeds)] if seeds is not None else [])
+                       + (['--scale', str(scale)] if scale != 1.0 else [])
+                       + (['--backend', backend] if backend != 'local' else []))
+    write_atomic(out / 'experiment.json', json.dumps({
+        'name': name, 'command': command, 'seeds': n_seeds, 'scale': scale,
+        'backend': backend, 'wall_s': time.perf_counter() - started,
+        'runs_run': len(runs) - reused, 'runs_reused': reused}))
     return _summarise(exps, n_seeds, budgets, runs, out, log)
+
+
+def _limit(out: Path, search: LimitSearch, scale: float, log) -> None:
+    """Run a physical-limit search into ``out/limits/`` unless its file is there."""
+    import dataclasses
+
+    from sapga_ros.analysis.limit import beam_limit
+    from sim_nodes.problem import load_problem
+    path = out / 'limits' / search.file_name
+    width = max(200, int(search.width * min(scale, 1.0)))
+    if path.exists():
+        return
+    problem = load_problem(search.problem)
+    if search.alternative_goal:
+        problem = dataclasses.replace(problem, goal_scale=problem.goal_alt_scale)
+    start = time.perf_counter()
+    limit = beam_limit(problem, width=width, cells=search.cells, per_cell=search.per_cell)
+    doc = {**dataclasses.asdict(limit), 'alternative_goal': search.alternative_goal,
+           'seconds': time.perf_counter() - start}
+    write_atomic(path, json.dumps(doc))
+    log(f'limit of {search.problem}{" (alternative goal)" if search.alternative_goal else ""}: '
+        f'delta {limit.delta:.5f} at step {limit.step}')
 
 
 def _execute(jobs: list[tuple], workers: int, backend: str = 'local',

@@ -1,0 +1,103 @@
+"""``sapga experiment`` and ``sapga limit``: experiment sets (local or on Ray), their report,
+and the physical limit of a problem.
+
+    sapga experiment NAME --out DIR [--only 2,4] [--seeds N] [--scale F] [--workers W]
+                     [--backend local|ray] [--address ADDR]
+    sapga experiment report DIR
+    sapga limit --problem P [--alternative-goal] [--width W] [--cells C] [--per-cell K]
+                [--seed S] [--json] [--out FILE.json]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+from dataclasses import asdict
+from pathlib import Path
+
+from sapga_ros.cli.args import delta_value, nonneg_int, positive_int
+from sapga_ros.errors import SapgaError
+
+
+def add_experiment_arguments(ex: argparse.ArgumentParser) -> None:
+    ex.add_argument('name', help='msg_configs/experiments/<name>.yaml (table2, styles), or '
+                                 '"report" to rewrite DIR/report.md from its runs')
+    ex.add_argument('dir', nargs='?', help='with report: the experiment directory')
+    ex.add_argument('--out', help='directory for runs/, summary.json, report.md, figures')
+    ex.add_argument('--only', help='comma-separated experiment ids, e.g. 2,4')
+    ex.add_argument('--seeds', type=positive_int, help='seeds per experiment (default: the '
+                                                       'set\'s, 20 for table2)')
+    ex.add_argument('--scale', type=delta_value, default=1.0,
+                    help='multiply every step budget (e.g. 0.1 for a quick look)')
+    ex.add_argument('--workers', type=nonneg_int, default=0,
+                    help='parallel runs (default 0: every core)')
+    ex.add_argument('--backend', choices=('local', 'ray'), default='local',
+                    help='local worker processes, or tasks on a Ray cluster')
+    ex.add_argument('--address', help='with --backend ray: a running cluster (default: start '
+                                      'a local Ray instance)')
+
+
+def cmd_experiment(args) -> int:
+    from sapga_ros.training.experiments import run_experiments
+    from sapga_ros.viz.report import write_report
+    if args.name == 'report':
+        if not args.dir:
+            raise SapgaError('experiment report needs the experiment directory')
+        path = write_report(Path(args.dir))
+        print(f'report: {path}')
+        return 0
+    if args.dir:
+        raise SapgaError(f'unexpected argument {args.dir!r} (the directory is --out DIR)')
+    if not args.out:
+        raise SapgaError('--out DIR is required')
+    if args.address and args.backend != 'ray':
+        raise SapgaError('--address is for --backend ray')
+    only = None
+    if args.only:
+        try:
+            only = [int(x) for x in args.only.split(',') if x.strip()]
+        except ValueError:
+            raise SapgaError(f'--only: expected comma-separated ids, got {args.only[:40]!r}')
+    run_experiments(args.name, args.out, only, args.seeds, args.scale, args.workers or None,
+                    backend=args.backend, address=args.address)
+    path = write_report(Path(args.out))
+    print(f'report: {path}')
+    return 0
+
+
+def add_limit_arguments(li: argparse.ArgumentParser) -> None:
+    li.add_argument('--problem', required=True, help='problem name')
+    li.add_argument('--alternative-goal', action='store_true',
+                    help='use the problem\'s alternative goal reading (PDIP: |v| <= 32 delta)')
+    li.add_argument('--width', type=positive_int, default=50_000, help='beam width')
+    li.add_argument('--cells', type=positive_int, default=32,
+                    help='grid cells per state coordinate')
+    li.add_argument('--per-cell', type=positive_int, default=4,
+                    help='children kept per grid cell')
+    li.add_argument('--seed', type=nonneg_int, default=0, help='random seed')
+    li.add_argument('--json', action='store_true', help='print one JSON object')
+    li.add_argument('--out', help='also write the result (with its action sequence) here')
+
+
+def cmd_limit(args) -> int:
+    import dataclasses
+
+    from sapga_ros.analysis.limit import beam_limit
+    from sapga_ros.io.atomic import write_atomic
+    from sim_nodes.problem import load_problem
+    problem = load_problem(args.problem)
+    if args.alternative_goal:
+        if problem.goal_alt_scale is None:
+            raise SapgaError(f'{problem.name} has no alternative goal reading')
+        problem = dataclasses.replace(problem, goal_scale=problem.goal_alt_scale)
+    limit = beam_limit(problem, width=args.width, cells=args.cells, per_cell=args.per_cell,
+                       seed=args.seed)
+    doc = asdict(limit)
+    if args.out:
+        write_atomic(Path(args.out), json.dumps(doc))
+    if args.json:
+        print(json.dumps({k: v for k, v in doc.items() if k != 'actions'}))
+    else:
+        print(f'{problem.name}: smallest delta found {limit.delta:.6f} at step {limit.step} '
+              f'({limit.steps_simulated:,d} MDP steps simulated; width {limit.width}, '
+              f'{limit.cells} cells per coordinate)')
+    return 0
