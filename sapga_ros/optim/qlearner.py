@@ -18,7 +18,7 @@ from sapga_ros.errors import CheckpointError
 from sapga_ros.optim.base import Optimizer, Result, State
 from sapga_ros.optim.qlearning import QTable, learn
 from sapga_ros.optim.settings import check, setting
-from sim_nodes.goal import goal_arrays
+from sim_nodes.goal import alt_goal_arrays, goal_arrays
 from sim_nodes.models import model_id
 from sim_nodes.problem import Problem
 
@@ -61,15 +61,17 @@ class QLearning(Optimizer):
         self.episodes = int(c.get('episodes', 0))
         self.best_value = float(c.get('best_value', -math.inf))   # best episode return
         self.delta_star = float(c.get('delta_star', math.inf))    # min delta(s) so far
+        self.delta_star_alt = float(c.get('delta_star_alt', math.inf))  # alternative goal
         self.chunks = int(c.get('chunks', 0))
         pr = problem
         idx, low, width, tiles = QTable(pr, q, visited, {}).tiling
         self._model = model_id(pr.model)
         self._consts = (pr.initial_state, pr.params(), pr.action_values, idx, low, width,
                         tiles, *goal_arrays(pr), pr.is_angle, delta, pr.n_step,
-                        pr.ql_epsilon, pr.ql_eta, GAMMA)
+                        pr.ql_epsilon, pr.ql_eta, GAMMA, *alt_goal_arrays(pr))
+        self._alt = pr.goal_alt_scale is not None
         n = params.chunk_steps                 # an episode has at least one step
-        self._episodes = (np.empty(n), np.empty(n, np.int64), np.empty(n))
+        self._episodes = (np.empty(n), np.empty(n, np.int64), np.empty(n), np.empty(n))
 
     @classmethod
     def create(cls, problem: Problem, params: QlParams, seed: int, delta: float,
@@ -81,15 +83,17 @@ class QLearning(Optimizer):
 
     def ask(self) -> list:
         """Learn from the next chunk of episodes; nothing is left to evaluate."""
-        ep_r, ep_s, ep_d = self._episodes
+        ep_r, ep_s, ep_d, ep_alt = self._episodes
         budget = min(self.params.chunk_steps, self.budget - self._steps)
         done, n_ep = learn(self._model, self.q, self.visited, self.rng,
-                           *self._consts, budget, ep_r, ep_s, ep_d)
+                           *self._consts, budget, ep_r, ep_s, ep_d, ep_alt)
         self._steps += int(done)
         self.episodes += int(n_ep)
         if n_ep:
             self.best_value = max(self.best_value, float(ep_r[:n_ep].max()))
             self.delta_star = min(self.delta_star, float(ep_d[:n_ep].min()))
+            if self._alt:
+                self.delta_star_alt = min(self.delta_star_alt, float(ep_alt[:n_ep].min()))
         self.chunks += 1
         return []
 
@@ -118,8 +122,11 @@ class QLearning(Optimizer):
             'eta': self.problem.ql_eta, 'gamma': GAMMA})
 
     def counters(self) -> dict:
-        return {'episodes': self.episodes, 'steps': self._steps,
-                'best_value': self.best_value, 'delta_star': self.delta_star}
+        counters = {'episodes': self.episodes, 'steps': self._steps,
+                    'best_value': self.best_value, 'delta_star': self.delta_star}
+        if self._alt:
+            counters['delta_star_alt'] = self.delta_star_alt
+        return counters
 
     @staticmethod
     def settings(problem: Problem, params: QlParams) -> dict:
@@ -140,6 +147,8 @@ class QLearning(Optimizer):
                         'best_value': float(meta['best_value']),
                         'delta_star': float(meta['delta_star']),
                         'chunks': int(meta.get('chunks', 0))}
+            if meta.get('delta_star_alt') is not None:
+                counters['delta_star_alt'] = float(meta['delta_star_alt'])
         except (KeyError, TypeError, ValueError) as exc:
             raise CheckpointError(f'malformed run state ({exc})') from exc
         if q.shape != (cells, len(problem.actions)) or q.dtype != np.float64 or \

@@ -15,6 +15,7 @@ policy is written as a ``sapga-qtable/1`` JSON document (visited cells only), wh
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -71,17 +72,20 @@ def greedy(q, cell):
 
 @kernel
 def learn(model, q, visited, rng, s0, p, actions, idx, low, width, tiles, best, inv_scale,
-          fixed, is_angle, delta, n_step, epsilon, eta, gamma, budget, ep_return,
-          ep_steps, ep_dstar):
+          fixed, is_angle, delta, n_step, epsilon, eta, gamma, alt_inv_scale, alt_fixed,
+          budget, ep_return, ep_steps, ep_dstar, ep_dstar_alt):
     """Run whole episodes of model number ``model`` until ``budget`` steps are spent.
 
-    Per-episode measures go into the ep_* arrays.  Returns (steps simulated, episodes run).
+    Per-episode measures go into the ep_* arrays (``ep_dstar_alt``: delta* under the
+    alternative goal reading, if alt_inv_scale is not empty).  Returns (steps simulated,
+    episodes run).
     """
     dim = s0.shape[0]
     S = np.empty((dim, 1))
     a_buf = np.zeros(1)
     r_buf = np.zeros(1)
     n_act = actions.shape[0]
+    alt = alt_inv_scale.shape[0] > 0
     steps = 0
     episodes = 0
     while steps < budget and episodes < ep_return.shape[0]:
@@ -90,6 +94,9 @@ def learn(model, q, visited, rng, s0, p, actions, idx, low, width, tiles, best, 
         cell = cell_index(s, idx, low, width, tiles)
         total = 0.0
         dstar = goal_delta(s, best, inv_scale, fixed, is_angle)
+        dstar_alt = math.inf
+        if alt:
+            dstar_alt = goal_delta(s, best, alt_inv_scale, alt_fixed, is_angle)
         t = 0
         while t < n_step:
             if xorshift_uniform(rng) < epsilon:
@@ -104,6 +111,10 @@ def learn(model, q, visited, rng, s0, p, actions, idx, low, width, tiles, best, 
             d = goal_delta(s, best, inv_scale, fixed, is_angle)
             if d < dstar:
                 dstar = d
+            if alt:
+                d_alt = goal_delta(s, best, alt_inv_scale, alt_fixed, is_angle)
+                if d_alt < dstar_alt:
+                    dstar_alt = d_alt
             nxt = cell_index(s, idx, low, width, tiles)
             target = r
             if d > delta:                      # not terminal: bootstrap
@@ -116,6 +127,7 @@ def learn(model, q, visited, rng, s0, p, actions, idx, low, width, tiles, best, 
         ep_return[episodes] = total
         ep_steps[episodes] = t
         ep_dstar[episodes] = dstar
+        ep_dstar_alt[episodes] = dstar_alt
         episodes += 1
         steps += t
     return steps, episodes
