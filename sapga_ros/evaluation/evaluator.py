@@ -103,11 +103,12 @@ class Evaluator:
         val = np.zeros((len(policies), lmax))
         values = self.actions
         for k, p in enumerate(policies):
-            ex[k, :, :len(p)] = normalize_states(p.states, self.ranges, self.is_angle)
+            n = len(p)
+            normalize_states(p.states, self.ranges, self.is_angle, ex[k, :, :n])
             if style.uses('state2'):
-                ex2[k, :, :len(p)] = normalize_states(p.states2, self.ranges, self.is_angle)
-            act[k, :len(p)] = values[p.actions]
-            val[k, :len(p)] = p.values
+                normalize_states(p.states2, self.ranges, self.is_angle, ex2[k, :, :n])
+            act[k, :n] = values[p.actions]
+            val[k, :n] = p.values
         return style.number, ex, ex2, act, val, lengths
 
     def evaluate(self, policies: list[ExemplarPolicy]) -> BatchResult:

@@ -76,12 +76,21 @@ def nearest(u, ex, n, is_angle, acc):
     return best
 
 
-def normalize_states(states: np.ndarray, ranges: np.ndarray, is_angle: np.ndarray) -> np.ndarray:
-    """(L, D) raw exemplar states -> (D, L) normalised, as ``nearest`` takes them."""
-    out = np.empty((states.shape[1], states.shape[0]), dtype=np.float64)
-    inv = 1.0 / ranges
+@kernel
+def normalize_rows_into(states, inv_range, is_angle, out):
+    """out[:, j] = ``normalize_into`` of states[j] for every row (one compiled call)."""
     for j in range(states.shape[0]):
-        normalize_into(states[j], inv, is_angle, out[:, j])
+        normalize_into(states[j], inv_range, is_angle, out[:, j])
+
+
+def normalize_states(states: np.ndarray, ranges: np.ndarray, is_angle: np.ndarray,
+                     out: np.ndarray | None = None) -> np.ndarray:
+    """(L, D) raw exemplar states -> (D, L) normalised, as ``nearest`` takes them (into
+    ``out`` if given, e.g. a slice of a packed batch)."""
+    states = np.ascontiguousarray(states, dtype=np.float64)
+    if out is None:
+        out = np.empty((states.shape[1], states.shape[0]), dtype=np.float64)
+    normalize_rows_into(states, 1.0 / ranges, is_angle, out)
     return out
 
 

@@ -80,11 +80,20 @@ class ExemplarPolicy:
     def action_values(self) -> np.ndarray:
         return self.problem.action_values[self.actions]
 
+    @classmethod
+    def of_valid(cls, problem: Problem, states: np.ndarray, actions: np.ndarray, style: str,
+                 values: np.ndarray, states2: np.ndarray) -> ExemplarPolicy:
+        """A policy of arrays already in the form ``__post_init__`` makes (taken from valid
+        policies): no checks, no copies.  The operators' hot path."""
+        policy = cls.__new__(cls)
+        policy.problem, policy.states, policy.actions = problem, states, actions
+        policy.meta, policy.style, policy.values, policy.states2 = {}, style, values, states2
+        return policy
+
     def subset(self, index) -> ExemplarPolicy:
         """The policy of the exemplars ``index`` (a mask or indices), in that order."""
-        return ExemplarPolicy(self.problem, self.states[index], self.actions[index],
-                              style=self.style, values=self.values[index],
-                              states2=self.states2[index])
+        return ExemplarPolicy.of_valid(self.problem, self.states[index], self.actions[index],
+                                       self.style, self.values[index], self.states2[index])
 
     def records(self) -> np.ndarray:
         """(L, K) float64: each exemplar's record, every field the style uses, in a row."""
@@ -145,10 +154,12 @@ class ExemplarPolicy:
 def concat_policies(parts: list[ExemplarPolicy]) -> ExemplarPolicy:
     """One policy of every exemplar of ``parts`` (same problem and style), in order."""
     first = parts[0]
-    return ExemplarPolicy(first.problem, np.concatenate([p.states for p in parts]),
-                          np.concatenate([p.actions for p in parts]), style=first.style,
-                          values=np.concatenate([p.values for p in parts]),
-                          states2=np.concatenate([p.states2 for p in parts]))
+    if any(p.style != first.style or p.problem is not first.problem for p in parts):
+        raise SapgaError('concatenated policies must share their problem and style')
+    return ExemplarPolicy.of_valid(first.problem, np.concatenate([p.states for p in parts]),
+                                   np.concatenate([p.actions for p in parts]), first.style,
+                                   np.concatenate([p.values for p in parts]),
+                                   np.concatenate([p.states2 for p in parts]))
 
 
 def _reject_constant(name: str) -> float:

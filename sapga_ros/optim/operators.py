@@ -42,35 +42,57 @@ def random_policy(problem: Problem, rng: np.random.Generator, l_min: int,
     return random_exemplars(problem, size, rng, style)
 
 
+def _keys(policy: ExemplarPolicy) -> np.ndarray:
+    """One opaque byte string per exemplar record (equal records, equal keys)."""
+    rows = policy.records()
+    return rows.view(np.dtype((np.void, rows.dtype.itemsize * rows.shape[1]))).ravel()
+
+
 def deduplicate(policy: ExemplarPolicy) -> ExemplarPolicy:
     """Drop exemplars identical (bit for bit, every field) to an earlier one; keep order."""
-    rows = policy.records()
-    keys = rows.view(np.dtype((np.void, rows.dtype.itemsize * rows.shape[1]))).ravel()
-    _, first = np.unique(keys, return_index=True)
-    if len(first) == len(rows):
+    _, first = np.unique(_keys(policy), return_index=True)
+    if len(first) == len(policy):
         return policy
     first.sort()
     return policy.subset(first)
 
 
+def parents_union(p1: ExemplarPolicy, p2: ExemplarPolicy) -> tuple[ExemplarPolicy, np.ndarray]:
+    """The deduplicated union of p1 and p2 (first-seen order) and, for every exemplar of
+    p1 then p2, the index of its record in that union (computed once per family)."""
+    both = concat_policies([p1, p2])
+    _, first, inverse = np.unique(_keys(both), return_index=True, return_inverse=True)
+    order = np.argsort(first, kind='stable')
+    rank = np.empty(len(first), dtype=np.int64)
+    rank[order] = np.arange(len(first))
+    return both.subset(first[order]), rank[inverse.ravel()]
+
+
 def uniform_crossover(p1: ExemplarPolicy, p2: ExemplarPolicy, rng: np.random.Generator,
                       l_min: int, l_max: int, rate: tuple[float, float] = (0.3, 0.7),
-                      max_tries: int = 100) -> tuple[ExemplarPolicy, bool]:
+                      max_tries: int = 100, union: tuple | None = None
+                      ) -> tuple[ExemplarPolicy, bool]:
     """A child of p1 and p2 and whether it had to be repaired (SPEC 3.2).
 
-    Repair, after ``max_tries`` failed attempts: draw a legal size, fill it from the
-    parents' deduplicated union, topped up with fresh random exemplars only if the union is
-    smaller than l_min.  (A converged population of near-identical parents of about l_min
-    exemplars almost never yields a legal size; an unbounded retry would stall the run.)
+    Each attempt keeps the selected exemplars deduplicated in first-seen order (computed
+    on record indices into the parents' union, so an attempt builds no policy until its
+    size is legal).  Repair, after ``max_tries`` failed attempts: draw a legal size, fill
+    it from the parents' deduplicated union, topped up with fresh random exemplars only if
+    the union is smaller than l_min.  (A converged population of near-identical parents of
+    about l_min exemplars almost never yields a legal size; an unbounded retry would stall
+    the run.)  ``union``: ``parents_union(p1, p2)`` if already computed.
     """
+    union, ids = parents_union(p1, p2) if union is None else union
+    ids1, ids2 = ids[:len(p1)], ids[len(p1):]
     for _ in range(max_tries):
         r = rng.uniform(*rate)                                    # selection rate
         take1 = rng.random(len(p1)) < r                           # e in E^p1 with prob r
         take2 = rng.random(len(p2)) < 1.0 - r                     # e in E^p2 with prob 1 - r
-        child = deduplicate(concat_policies([p1.subset(take1), p2.subset(take2)]))
-        if l_min <= len(child) <= l_max:
-            return child, False
-    union = deduplicate(concat_policies([p1, p2]))
+        chosen = np.concatenate([ids1[take1], ids2[take2]])
+        _, first = np.unique(chosen, return_index=True)           # identical ones once
+        if l_min <= len(first) <= l_max:
+            first.sort()
+            return union.subset(chosen[first]), False
     size = int(rng.integers(l_min, l_max + 1))
     if len(union) >= l_min:
         size = min(size, len(union))

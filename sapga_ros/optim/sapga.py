@@ -22,7 +22,8 @@ from sapga_ros.errors import CheckpointError, ConfigError
 from sapga_ros.exemplars.policy import ExemplarPolicy
 from sapga_ros.exemplars.styles import STYLES
 from sapga_ros.optim.base import Optimizer, Result, State
-from sapga_ros.optim.operators import random_policy, refresh, uniform_crossover
+from sapga_ros.optim.operators import (parents_union, random_policy, refresh,
+                                       uniform_crossover)
 from sapga_ros.optim.population import Individual, pack, unpack
 from sapga_ros.optim.settings import check, setting
 from sim_nodes.problem import Problem
@@ -109,10 +110,11 @@ class SapGA(Optimizer):
         for f in range(p.n_pop // 2):
             i, j = int(order[2 * f]), int(order[2 * f + 1])
             members = [self.population[i], self.population[j]]
+            union = parents_union(members[0].policy, members[1].policy)
             for _ in range(p.n_child):
                 child, repaired = uniform_crossover(
                     members[0].policy, members[1].policy, self.rng, p.l_min, p.l_max,
-                    p.crossover_rate, p.max_tries)
+                    p.crossover_rate, p.max_tries, union)
                 self.stats.repairs += repaired
                 members.append(Individual(child))
             pending.extend(m for m in members if not m.known)
