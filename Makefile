@@ -22,7 +22,8 @@ $(VENV)/.requirements: requirements.txt
 
 # sim_nodes/models: a model module added or removed changes the <model>_sim executables
 $(STAMP): $(VENV)/.requirements setup.py setup.cfg package.xml resource/sapga_ros \
-		sim_nodes/models $(shell find msg_configs -name '*.yaml' -o -name '*.yml' 2>/dev/null)
+		sim_nodes/models $(shell find msg_configs -name '*.yaml' -o -name '*.yml' -o -name '*.json' \
+		2>/dev/null)
 	$(PY) -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation -e .
 	touch $(STAMP)
 

@@ -116,7 +116,9 @@ if _editable_wheel is not None:
 data_files = [
     ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
     ('share/' + PACKAGE, ['package.xml']),
-    *tree_data_files('msg_configs', 'share/' + PACKAGE + '/msg_configs'),
+    # problems, node parameters, experiments, the Foxglove layout (foxglove/sapga_ros.json)
+    *tree_data_files('msg_configs', 'share/' + PACKAGE + '/msg_configs',
+                     ('*.yaml', '*.yml', '*.json')),
 ]
 
 setup(

@@ -42,7 +42,8 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, Int32, String
 from std_srvs.srv import Trigger
 
-from sim_nodes.ros.common import EVENT_QOS, stamp_ns, topic_names
+from sim_nodes.ros.commands import StampedCommand
+from sim_nodes.ros.common import EVENT_QOS, MessageError, stamp_ns, topic_names
 from sim_nodes.problem import Problem
 
 WAIT_S = 30.0  # [s] generous bound for any single wait: a failing test, not a timing check
@@ -197,7 +198,9 @@ class Probe(Node):
     """A test node on a problem's topics: records what it hears, publishes what it is told.
 
     ``states`` maps stamp [ns] -> JointState (re-publishes collapse), in arrival order;
-    ``events`` are the parsed episode events; ``rewards``, ``commands``, ``indices`` lists.
+    ``events`` are the parsed episode events; ``rewards``, ``indices`` lists; ``commands``
+    the values of the stamped commands (``command_stamped``) and ``answered`` their stamps.
+    ``command_pub`` publishes hand-use ``Float64`` commands, ``answer`` stamped ones.
     """
 
     def __init__(self, problem: Problem, node_name: str = 'probe', **kwargs: Any) -> None:
@@ -207,17 +210,21 @@ class Probe(Node):
         self.events: list[dict] = []
         self.rewards: list[float] = []
         self.commands: list[float] = []
+        self.answered: list[int] = []
         self.indices: list[int] = []
         self.lock = threading.Lock()
+        self._stamped = StampedCommand(problem)
         self.create_subscription(JointState, topics['state'], self._on_state, PROBE_QOS)
         self.create_subscription(String, topics['event'], self._on_event, EVENT_QOS)
         self.create_subscription(Float64, topics['reward'],
                                  lambda m: self.rewards.append(m.data), PROBE_QOS)
-        self.create_subscription(Float64, topics['command'],
-                                 lambda m: self.commands.append(m.data), PROBE_QOS)
+        self.create_subscription(JointState, topics['command_stamped'], self._on_command,
+                                 PROBE_QOS)
         self.create_subscription(Int32, topics['exemplar'],
                                  lambda m: self.indices.append(m.data), PROBE_QOS)
         self.command_pub = self.create_publisher(Float64, topics['command'], PROBE_QOS)
+        self.stamped_pub = self.create_publisher(JointState, topics['command_stamped'],
+                                                 PROBE_QOS)
         self.state_pub = self.create_publisher(JointState, topics['state'], PROBE_QOS)
         self.reset = self.create_client(Trigger, 'reset')
         self.load_policy = self.create_client(Trigger, 'load_policy')
@@ -225,6 +232,19 @@ class Probe(Node):
     def _on_state(self, msg: JointState) -> None:
         with self.lock:
             self.states.setdefault(stamp_ns(msg), msg)
+
+    def _on_command(self, msg: JointState) -> None:
+        try:
+            stamp, value = self._stamped.read(msg)
+        except MessageError:
+            return                  # a test's malformed command: not the policy node's
+        with self.lock:
+            self.answered.append(stamp)
+            self.commands.append(value)
+
+    def answer(self, value: float, stamp: int) -> None:
+        """Publish a stamped command answering the state stamped ``stamp`` [ns]."""
+        self.stamped_pub.publish(self._stamped.fill(value, stamp))
 
     def _on_event(self, msg: String) -> None:
         with self.lock:
@@ -255,7 +275,7 @@ def run_lockstep(ros, problem, policy, path, delta, episodes=2):
                                      'delta': delta, 'max_episodes': episodes,
                                      'republish_period': 0.05})
     ros.wait_for(lambda: sim._state_pub.get_subscription_count() == 2
-                 and sim._command_sub.get_publisher_count() == 2 and probe.states,
+                 and sim._stamped_sub.get_publisher_count() == 2 and probe.states,
                  'discovery of sim, policy node and probe')
     policy.save(path)
     assert pol.set_parameters([Parameter('policy_file', value=str(path))])[0].successful

@@ -41,10 +41,11 @@ EXECUTABLES = sorted(_executables())
 
 
 def _config_files() -> list[Path]:
-    """Every YAML file under msg_configs/, relative to it, subfolders included."""
+    """Every YAML and JSON file (the Foxglove layout) under msg_configs/, relative to it,
+    subfolders included."""
     root = REPO / 'msg_configs'
     return sorted(p.relative_to(root) for p in root.rglob('*')
-                  if p.suffix in ('.yaml', '.yml') and p.is_file())
+                  if p.suffix in ('.yaml', '.yml', '.json') and p.is_file())
 
 
 def _is_executable_file(path: Path) -> bool:
@@ -152,7 +153,7 @@ def test_venv_install_has_every_executable_where_ros2_run_looks(venv_prefix):
 
 
 def test_venv_install_has_package_share_and_every_config(venv_prefix):
-    """The venv install carries package.xml and every msg_configs YAML under share/sapga_ros."""
+    """The venv install carries package.xml and every msg_configs file under share/sapga_ros."""
     share = venv_prefix / 'share' / PACKAGE
     assert (share / 'package.xml').is_file()
     missing = [str(rel) for rel in _config_files()

@@ -31,6 +31,7 @@ from rosbags.rosbag2 import Reader as RosbagsReader
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, Int32, String
 from std_srvs.srv import Trigger
+from visualization_msgs.msg import MarkerArray
 
 from ros_helpers import free_domain_id
 from sapga_ros.recording.reader import decode_messages, read_recording
@@ -78,6 +79,8 @@ class Publisher:
             'reward': self.node.create_publisher(Float64, 'reward', DEPTH),
             'event': self.node.create_publisher(String, 'episode_event', event_qos),
             'exemplar': self.node.create_publisher(Int32, 'exemplar_index', DEPTH),
+            'command_stamped': self.node.create_publisher(JointState, 'command_stamped', DEPTH),
+            'markers': self.node.create_publisher(MarkerArray, 'markers', DEPTH),
         }
         self.executor = SingleThreadedExecutor(context=context)
         self.executor.add_node(self.node)
@@ -363,7 +366,8 @@ def test_a_volatile_publisher_is_matched_by_adapting_the_subscription(context, t
 
 
 def test_ready_says_what_is_missing_until_every_publisher_is_matched(context, tmp_path):
-    """~/ready fails, naming the topics, until each recorded topic's publishers are matched."""
+    """~/ready fails, naming the topics, until each recorded topic's publishers are matched;
+    the hand-use command topic needs no publisher."""
     from sapga_ros.nodes.recorder_node import RecorderNode
 
     recorder = RecorderNode(context=context, parameter_overrides=[
@@ -375,10 +379,12 @@ def test_ready_says_what_is_missing_until_every_publisher_is_matched(context, tm
             probe.node.destroy_publisher(probe.pubs.pop(role))
         answer = probe.ready()
         assert not answer.success and '/joint_states' in answer.message
+        assert '/command_stamped (' in answer.message and '/command (' not in answer.message
         full = Publisher(context, name='all_topics')
+        full.node.destroy_publisher(full.pubs.pop('command'))
         probe.executor.add_node(full.node)
         probe.spin_until(lambda: probe.ready().success, 'the recorder to be ready')
-        assert 'recording 5 topics' in probe.ready().message
+        assert 'recording 7 topics' in probe.ready().message
         probe.executor.remove_node(full.node)
         full.close()
     finally:

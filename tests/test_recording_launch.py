@@ -2,10 +2,11 @@
 
 ``sapga launch swingup`` runs 3 lockstep episodes 10 times, each in a fresh ROS domain; every
 bag, read with rosbags' ``AnyReader`` (an independent reader), must hold exactly the
-episodes the offline evaluator computes: every start and end event, every reward, every state
-and every command, in order.  Then the hostile inputs that used to break a recorded run: a
-deeply nested ``episode_event`` on the launcher's ROS thread, a callback that raises, and a
-simulator waiting for a recorder that never comes.
+episodes the offline evaluator computes: every start and end event, every reward, every
+state, every command (each answering its state) and the markers of every state, in order.
+Then the hostile inputs that used to break a recorded run: a deeply nested
+``episode_event`` on the launcher's ROS thread, a callback that raises, and a simulator
+waiting for a recorder that never comes.
 """
 from __future__ import annotations
 
@@ -73,14 +74,16 @@ def check_bag(bag: Path, offline) -> None:
     assert [m.data for m in got['/reward']] == list(offline.rewards) * EPISODES
     first: dict[int, np.ndarray] = {}
     for msg in got['/joint_states']:        # re-published states repeat their stamp
-        stamp = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+        stamp = stamp_of(msg)
         state = layout.from_msg(msg)
         assert np.array_equal(first.setdefault(stamp, state), state)
     tick = round(problem.dt * problem.substeps * 1e9)
     assert sorted(first) == [k * tick for k in range(EPISODES * (steps + 1))]
     states = np.array([first[t] for t in sorted(first)])
     assert np.array_equal(states, np.vstack([offline.states] * EPISODES))
-    commands = [m.data for m in got['/command']]
+    commands = [m.effort[0] for m in got['/command_stamped']]
+    answered = [stamp_of(m) for m in got['/command_stamped']]
+    assert answered == sorted(first)[:len(answered)]   # each answers its state, in order
     exemplars = [m.data for m in got['/exemplar_index']]
     # one command per state: each step's, then the one answering the final state (which
     # restarts the episode; the last episode's may come after the launch stopped)
@@ -90,6 +93,15 @@ def check_bag(bag: Path, offline) -> None:
         span = slice(n * (steps + 1), n * (steps + 1) + steps)
         assert commands[span] == list(offline.actions)
         assert exemplars[span] == list(offline.exemplars)
+    # the markers: the simulator's scene of every state, the policy's ghost of every answer
+    scenes = {stamp_of(m.markers[0]) for m in got['/markers'] if m.markers[0].ns == 'links'}
+    ghosts = [stamp_of(m.markers[0]) for m in got['/markers'] if m.markers[0].ns == 'exemplar']
+    assert scenes == set(first) and ghosts == answered
+
+
+def stamp_of(msg) -> int:
+    """header.stamp [ns] of a decoded message."""
+    return msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
 
 
 def test_ten_lockstep_launches_record_every_message_exactly(tmp_path, policy_file):

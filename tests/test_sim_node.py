@@ -131,7 +131,7 @@ def test_bad_commands_are_ignored_or_clamped_and_the_sim_survives(ros, name):
     ros.wait_for(lambda: sim._command_sub.get_publisher_count() and probe.states, 'discovery')
     for value in (math.nan, math.inf, -math.inf):
         probe.command_pub.publish(Float64(data=value))
-    ros.wait_for(lambda: sim.ignored_commands == 3, 'three ignored commands')
+    ros.wait_for(lambda: sim.commands.ignored == 3, 'three ignored commands')
     assert sim.total_steps == 0
     expected = problem.initial_state
     cases = [(50.0 * limit, limit), (-1e300, -limit), (0.25 * limit, 0.25 * limit)]
@@ -142,7 +142,7 @@ def test_bad_commands_are_ignored_or_clamped_and_the_sim_survives(ros, name):
         assert np.array_equal(layout.from_msg(msg), expected)
         assert msg.effort[layout.actuator] == applied
         assert list(msg.name) == list(problem.joints)
-    assert sim.clamped_commands == 2
+    assert sim.commands.clamped == 2
     assert ros.call(probe.reset, Trigger.Request()).success  # still serving
 
 
@@ -159,7 +159,7 @@ def test_realtime_mode_holds_the_last_command_and_publishes_clock(ros):
                                   Parameter('mode', value='realtime')])
     assert all(r.successful for r in results)
     probe.command_pub.publish(Float64(data=-7.0))
-    ros.wait_for(lambda: sim.clamped_commands == 1, 'the command')
+    ros.wait_for(lambda: sim.commands.clamped == 1, 'the command')
     first = ros.wait_for(lambda: next((t for t, m in list(probe.states.items())
                                        if m.effort[layout.actuator] == -2.0), None),
                          'a state stepped with the clamped command')

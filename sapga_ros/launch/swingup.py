@@ -235,9 +235,12 @@ class DeployStack:
     def wait_connected(self, extra: dict[str, tuple[int, int]] | None = None) -> None:
         """Wait until every topic of the stack has its publishers and subscribers."""
         t = self.ros.node.topics
-        # the launcher node itself subscribes to the state and the episode events
-        needs = {t['state']: (1, 3), t['command']: (1, 2), t['reward']: (1, 1),
-                 t['event']: (1, 2), t['exemplar']: (1, 1), **(extra or {})}
+        # the launcher node itself subscribes to the state and the episode events; the
+        # policy node answers on command_stamped (command is for hand use); the sim and the
+        # policy node both draw on markers
+        needs = {t['state']: (1, 3), t['command_stamped']: (1, 2), t['command']: (0, 2),
+                 t['reward']: (1, 1), t['event']: (1, 2), t['exemplar']: (1, 1),
+                 t['markers']: (2, 1), **(extra or {})}
         node = self.ros.node
         try:
             self.sup.wait(lambda: not node.missing_links(needs), timeout=CONNECT_TIMEOUT_S,

@@ -2,11 +2,14 @@
 
 Subscribes to the state (``sensor_msgs/JointState``), selects the action with the policy's
 style through the same compiled selector and packing as ``Evaluator``
-(``sapga_ros.evaluation.state_selector``), and publishes the action on ``command`` and the
-exemplar the selector reported on ``exemplar_index`` (-1: none, e.g. a via-point policy
-heading for the best state).  Each distinct state stamp is answered once, so the lockstep
-sim's re-publishes are harmless.  A via-point policy starts its list again whenever the
-state is the problem's initial state (every episode starts there).
+(``sapga_ros.evaluation.state_selector``), and answers it on ``command_stamped``
+(``sensor_msgs/JointState`` stamped with the answered state's stamp, ``effort`` = the action
+on the actuator joint: ``sim_nodes/ros/commands.py``), with the exemplar the selector
+reported on ``exemplar_index`` (-1: none, e.g. a via-point policy heading for the best
+state) and that exemplar's state drawn as a ghost on ``markers`` (namespace ``exemplar``).
+Each distinct state stamp is answered once, so the lockstep sim's re-publishes are harmless.
+A via-point policy starts its list again whenever the state is the problem's initial state
+(every episode starts there).
 
 Parameters:
 
@@ -18,6 +21,9 @@ policy_file       string    ''            a policy JSON file (SPEC 3.3), loaded 
                                           setting it loads that file or is refused
 trainer_service   string    get_policy    the trainer's std_srvs/Trigger (read-only)
 load_timeout      double    5.0           [s] wait for the trainer's answer at most
+markers           bool      true          publish the exemplar ghost on ``markers``
+qos_profile       string    reliable      ``reliable`` (the problem's ``ros.qos``) |
+                                          ``sensor_data`` (best effort; read-only)
 ================  ========  ============  ================================================
 
 Service ``load_policy`` (std_srvs/Trigger) fetches the policy from ``trainer_service``.  A
@@ -38,12 +44,16 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.task import Future
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64, Int32
+from std_msgs.msg import Int32
 from std_srvs.srv import Trigger
+from visualization_msgs.msg import MarkerArray
 
 from sapga_ros.errors import ConfigError, SapgaError
-from sim_nodes.ros.common import (QUIET_PUBLISHER, THROTTLE_S, JointStateLayout, MessageError,
-                                  qos_profile, run_node, stamp_ns, steady_clock, topic_names)
+from sim_nodes.ros.commands import StampedCommand
+from sim_nodes.ros.common import (QOS_PROFILES, QUIET_PUBLISHER, THROTTLE_S, JointStateLayout,
+                                  MessageError, run_node, stamp_ns, steady_clock, topic_names,
+                                  topic_qos)
+from sim_nodes.ros.markers import PendulumMarkers
 from sapga_ros.evaluation.state_selector import StateSelector
 from sapga_ros.exemplars.policy import ExemplarPolicy, load_policy, policy_from_json
 from sim_nodes.problem import Problem, load_problem
@@ -71,6 +81,8 @@ def check_setting(name: str, value: Any) -> str | None:
     """Why ``value`` is not acceptable for parameter ``name``, or None (files: see below)."""
     if name == 'load_timeout' and not (np.isfinite(value) and value > 0):
         return f'load_timeout: expected a finite number of seconds > 0, got {value}'
+    if name == 'qos_profile' and value not in QOS_PROFILES:
+        return f'qos_profile: expected one of {", ".join(QOS_PROFILES)}, got {value!r}'
     return None
 
 
@@ -85,9 +97,12 @@ class PolicyNode(Node):
         policy_file = self.declare_parameter('policy_file', '').value
         service = self.declare_parameter('trainer_service', 'get_policy', ro).value
         self.load_timeout = self.declare_parameter('load_timeout', 5.0).value
-        reason = check_setting('load_timeout', self.load_timeout)
-        if reason:
-            raise ConfigError(f'{self.get_name()}: parameter {reason}')
+        self.markers = self.declare_parameter('markers', True).value
+        self.qos_profile = self.declare_parameter('qos_profile', 'reliable', ro).value
+        for key in ('load_timeout', 'qos_profile'):
+            reason = check_setting(key, getattr(self, key))
+            if reason:
+                raise ConfigError(f'{self.get_name()}: parameter {reason}')
 
         p = self.problem
         self._layout = JointStateLayout(p)
@@ -101,10 +116,12 @@ class PolicyNode(Node):
         self.unanswered = 0            # states seen with no policy loaded
 
         topics = topic_names(p)
-        qos = qos_profile(p)
+        qos = topic_qos(p, self.qos_profile)
         quiet = {'event_callbacks': QUIET_PUBLISHER}
-        self._command_pub = self.create_publisher(Float64, topics['command'], qos, **quiet)
+        self._command_pub = self.create_publisher(JointState, topics['command_stamped'], qos,
+                                                  **quiet)
         self._index_pub = self.create_publisher(Int32, topics['exemplar'], qos, **quiet)
+        self._marker_pub = self.create_publisher(MarkerArray, topics['markers'], qos, **quiet)
         self._state_sub = self.create_subscription(JointState, topics['state'],
                                                    self._on_state, qos)
         # The load_policy coroutine stays in progress while it awaits the trainer.  In the
@@ -115,8 +132,9 @@ class PolicyNode(Node):
         self._client = self.create_client(Trigger, service, callback_group=self._load_group)
         self._load_srv = self.create_service(Trigger, 'load_policy', self._on_load_policy,
                                              callback_group=self._load_group)
-        self._command_msg = Float64()
+        self._command = StampedCommand(p)
         self._index_msg = Int32()
+        self._ghosts = PendulumMarkers(p)
 
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
@@ -160,10 +178,13 @@ class PolicyNode(Node):
             return
         self._last_stamp = stamp
         self.answered += 1
-        self._command_msg.data = action
-        self._command_pub.publish(self._command_msg)
+        self._command_pub.publish(self._command.fill(action, stamp))
         self._index_msg.data = int(j)
         self._index_pub.publish(self._index_msg)
+        if self.markers:
+            ghost = self._ghosts.exemplar(prepared.policy.states[j] if j >= 0 else None, stamp)
+            if ghost is not None:
+                self._marker_pub.publish(ghost)
 
     # policies -------------------------------------------------------------------------------
 
@@ -257,8 +278,8 @@ class PolicyNode(Node):
 
     def _apply_parameters(self, params: list[Parameter]) -> None:
         for param in params:
-            if param.name == 'load_timeout':
-                self.load_timeout = param.value
+            if param.name in ('load_timeout', 'markers'):
+                setattr(self, param.name, param.value)
             elif param.name == 'policy_file' and param.value in self._staged:
                 self._install(self._staged.pop(param.value))
         self._staged.clear()

@@ -9,7 +9,8 @@ MCAP storage plugin writes them, so ``ros2 bag info/play``, Foxglove, rosbags an
 ``sapga inspect`` read it.
 
 Service ``~/ready`` (``std_srvs/Trigger``): success once every recorded topic has a publisher
-and each of its publishers is matched; ``message`` names what is missing.  A simulator with
+(the hand-use ``command`` topic may have none) and each of its publishers is matched;
+``message`` names what is missing.  A simulator with
 ``wait_for_recorder`` (and ``sapga launch``) starts the run only then, so nothing is lost.
 
 Parameters (all read-only; msg_configs/params/recorder_node.yaml lists them):
@@ -21,8 +22,9 @@ problem         acrobot     msg_configs/<problem>.yaml: topic names, QoS, state 
 output_dir      recordings  directory the bag directory is made in (created if missing)
 bag             ''          the bag directory's name; '' = ``<problem>_<UTC time>``.  An
                             existing directory is never overwritten
-topics          (problem)   topics to record; default: the problem's state, command, reward,
-                            episode_event and exemplar_index topics.  An entry is a name
+topics          (problem)   topics to record; default: the problem's state, command,
+                            command_stamped, reward, episode_event, exemplar_index and
+                            markers topics.  An entry is a name
                             (type from the problem, else found on the graph once a publisher
                             appears) or ``name:pkg/msg/Type`` (quote it inside ``-p`` lists:
                             ``-p 'topics:=["odom:nav_msgs/msg/Odometry"]'``)
@@ -63,7 +65,7 @@ from std_srvs.srv import Trigger
 from sapga_ros.errors import SapgaError
 from sapga_ros.nodes.recorder_qos import (adapt_to_offers, describe, incompatible,
                                           offered_profile, role_qos)
-from sapga_ros.recording.events import ROLE_TYPES
+from sapga_ros.recording.events import OPTIONAL_ROLES, ROLE_TYPES
 from sapga_ros.recording.metadata import TopicInfo
 from sapga_ros.recording.schemas import (full_type_name, message_definition, publish_time_ns,
                                          type_hash)
@@ -236,10 +238,12 @@ class RecorderNode(Node):
     def missing(self) -> list[str]:
         """What the recorder lacks to hear every publisher of every recorded topic."""
         lacks = [f'{t} (type unknown: no publisher yet)' for t in self._pending]
+        optional = {self._roles.get(role) for role in OPTIONAL_ROLES}
         for topic, (sub, _, _) in self._subs.items():
             matched, on_graph = sub.get_publisher_count(), self.count_publishers(topic)
-            if matched < max(1, on_graph):
-                lacks.append(f'{topic} ({matched} of {max(1, on_graph)} publishers matched)')
+            need = on_graph if topic in optional else max(1, on_graph)
+            if matched < need:
+                lacks.append(f'{topic} ({matched} of {need} publishers matched)')
         return lacks
 
     def _on_ready(self, request: Trigger.Request, response: Trigger.Response

@@ -5,7 +5,9 @@ receive time: an episode runs from its ``start`` event to its ``goal`` / ``step_
 ``reset`` event; messages after that end and before the next start belong to no episode.
 States also carry their sim time, and events the sim time of their state, so a state that
 arrives just after its episode's end event still goes to its episode.  The state layout
-(which JointState joint and field is which coordinate) comes from the problem.
+(which JointState joint and field is which coordinate) comes from the problem.  Commands come
+from ``command_stamped`` (each names the state it answers: its stamp) and from the hand-use
+``command`` (held from the latest state heard); markers belong to no episode's numbers.
 """
 from __future__ import annotations
 
@@ -73,6 +75,10 @@ def _json_number(x: float | None) -> float | None:
     return None if x is None or not math.isfinite(x) else float(x)
 
 
+# the roles an episode is made of (markers are for viewers)
+EPISODE_ROLES = ('state', 'command', 'command_stamped', 'reward', 'event', 'exemplar')
+
+
 def topic_roles(rec: Recording, problem: Any) -> dict[str, str]:
     """topic -> role (state, command, reward, event, exemplar) of the recorded topics."""
     types = {name: schema_type(t) for name, t in rec.topics.items()}
@@ -122,6 +128,19 @@ def _stamp_ns(msg: Any) -> int:
     return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
 
 
+def stamped_command(msg: Any, problem: Any) -> tuple[int, float | None]:
+    """(answered state's stamp [ns], value) of a ``command_stamped`` JointState: the effort of
+    the problem's actuator joint (the only effort when the problem is unknown); value None
+    when there is none or it is not finite."""
+    names, effort = list(msg.name), list(msg.effort)
+    joint = problem.actuator_joint if problem is not None else None
+    if joint in names and names.index(joint) < len(effort):
+        value = effort[names.index(joint)]
+    else:
+        value = effort[0] if joint is None and len(effort) == 1 else None
+    return _stamp_ns(msg), finite(value)
+
+
 def build_episodes(messages: list[DecodedMessage], roles: dict[str, str],
                    problem: Any) -> tuple[list[Episode], int]:
     """Cut the messages into episodes; returns (episodes, malformed events).
@@ -130,7 +149,7 @@ def build_episodes(messages: list[DecodedMessage], roles: dict[str, str],
     sim time of their state ('time'), so a state that arrives just after its episode's end
     event (or just before the next start event) still goes to the episode it belongs to.
     """
-    timeline = sorted((m for m in messages if m.topic in roles),
+    timeline = sorted((m for m in messages if roles.get(m.topic) in EPISODE_ROLES),
                       key=lambda m: (m.log_time, m.index))
     episodes: list[Episode] = []
     orphans: list[tuple[int, np.ndarray | None]] = []   # states heard between episodes
@@ -181,6 +200,11 @@ def build_episodes(messages: list[DecodedMessage], roles: dict[str, str],
         ep = open_episode()
         if ep.closed:
             continue            # between episodes: belongs to none
+        if role == 'command_stamped':
+            stamp, value = stamped_command(m.value, problem)
+            if value is not None:
+                ep.commands.append((stamp, value + 0.0))
+            continue
         value = finite(m.value.data)
         if value is None:
             continue

@@ -17,9 +17,15 @@ ROLE_TYPES = {
     'reward': 'std_msgs/msg/Float64',
     'event': 'std_msgs/msg/String',
     'exemplar': 'std_msgs/msg/Int32',
+    'command_stamped': 'sensor_msgs/msg/JointState',
+    'markers': 'visualization_msgs/msg/MarkerArray',
 }
 DEFAULT_ROLE_TOPICS = {'state': 'joint_states', 'command': 'command', 'reward': 'reward',
-                       'event': 'episode_event', 'exemplar': 'exemplar_index'}
+                       'event': 'episode_event', 'exemplar': 'exemplar_index',
+                       'command_stamped': 'command_stamped', 'markers': 'markers'}
+# Roles a run may leave without a publisher: the hand-use Float64 command (the policy node
+# answers on command_stamped).  A recorder is ready without one; one that appears is recorded.
+OPTIONAL_ROLES = ('command',)
 EPISODE_END_EVENTS = ('goal', 'step_limit', 'reset')
 MAX_EVENT_CHARS = 65536     # an episode event is a few hundred characters
 

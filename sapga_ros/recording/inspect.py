@@ -14,8 +14,8 @@ from __future__ import annotations
 from typing import Any
 
 from sapga_ros.errors import ConfigError, McapError
-from sapga_ros.recording.episodes import (Episode, finite, build_episodes, episode_summary,
-                                          topic_roles)
+from sapga_ros.recording.episodes import (EPISODE_ROLES, Episode, finite, build_episodes,
+                                          episode_summary, topic_roles)
 from sapga_ros.recording.events import ROLE_TYPES
 from sapga_ros.recording.reader import Recording, decode_messages, schema_type
 
@@ -49,7 +49,7 @@ def summarize(rec: Recording) -> tuple[dict[str, Any], list[Episode], Any]:
     problem_name = _problem_name(rec)
     problem, problem_error = _load_problem(problem_name)
     roles = topic_roles(rec, problem)
-    messages, failed = decode_messages(rec, roles)
+    messages, failed = decode_messages(rec, [t for t, r in roles.items() if r in EPISODE_ROLES])
     episodes, bad_events = build_episodes(messages, roles, problem)
     goal_delta = finite(meta.get('delta'))
     if goal_delta is None and problem is not None:

@@ -8,7 +8,8 @@ say how many steps each took), a whole recording holds, on the topics of their r
 - every state: the distinct ``header.stamp`` values number the steps plus one initial state
   per episode (lockstep re-publishes repeat a stamp and count once);
 - in lockstep, a command for every step and every restart (the command answering an
-  episode's final state starts the next one); realtime steps hold the last command.
+  episode's final state starts the next one), on ``command_stamped`` or the hand-use
+  ``command``; realtime steps hold the last command.
 """
 from __future__ import annotations
 
@@ -23,7 +24,8 @@ def recording_gaps(rec: Recording, topics: Mapping[str, str],
                    ends: Sequence[Mapping[str, Any]], lockstep: bool = True) -> list[str]:
     """What ``rec`` lacks of the episodes that ended with ``ends``; [] when whole.
 
-    ``topics`` maps the roles state, command, reward, event to resolved topic names.
+    ``topics`` maps the roles state, reward, event, command and / or command_stamped to
+    resolved topic names.
     """
     steps = sum(int(e.get('step') or 0) for e in ends)
     n = len(ends)
@@ -40,5 +42,7 @@ def recording_gaps(rec: Recording, topics: Mapping[str, str],
                    steps + n),
     }
     if lockstep:
-        have['commands'] = (len(by_topic.get(topics['command'], [])), steps + n - 1)
+        commands = sum(len(by_topic.get(topics[role], []))
+                       for role in ('command', 'command_stamped') if role in topics)
+        have['commands'] = (commands, steps + n - 1)
     return [f'{got} of {want} {what}' for what, (got, want) in have.items() if got < want]

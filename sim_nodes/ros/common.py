@@ -5,12 +5,14 @@ Everything a node needs from a problem's ``ros:`` section, in one place:
 * ``topic_names(problem)``: the topic names of ``ros.topics`` (relative, so ``__ns``
   remapping namespaces them), with the contract's defaults;
 * ``qos_profile(problem)``: the ``ros.qos`` profile of the state and command topics;
+  ``topic_qos(problem, name)``: that one (``reliable``) or ``sensor_data`` (best effort, as
+  rclpy's ``qos_profile_sensor_data``), the nodes' ``qos_profile`` parameter;
 * ``EVENT_QOS``, ``CLOCK_QOS``: the profiles of ``episode_event`` and ``/clock``;
 * ``QUIET_PUBLISHER``: ``event_callbacks`` for publishers on the per-step path;
 * ``JointStateLayout``: the state vector <-> ``sensor_msgs/JointState`` per the ``state:``
   layout (``joint``, ``field``); ``from_msg`` checks names, lengths and finiteness and
   raises ``MessageError`` naming what is wrong;
-* ``stamp_ns``/``steady_clock``/``THROTTLE_S``: time helpers;
+* ``stamp_ns``/``set_stamp``/``steady_clock``/``THROTTLE_S``: time helpers;
 * ``run_node(make_node, args)``: the body of every executable's ``main()``: ``rclpy.init``,
   build the node, spin, clean shutdown on Ctrl-C, one-line error and exit code 1 on a
   configuration error;
@@ -31,7 +33,8 @@ from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.exceptions import ParameterException
 from rclpy.executors import Executor, ExternalShutdownException
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy,
+                       qos_profile_sensor_data)
 from sensor_msgs.msg import JointState
 
 from sim_nodes.errors import ConfigError, SapgaError
@@ -39,7 +42,9 @@ from sim_nodes.problem import Problem
 
 THROTTLE_S = 2.0  # [s] between repeats of a warning about bad input
 DEFAULT_TOPICS = {'state': 'joint_states', 'command': 'command', 'reward': 'reward',
-                  'event': 'episode_event', 'exemplar': 'exemplar_index'}
+                  'event': 'episode_event', 'exemplar': 'exemplar_index',
+                  'command_stamped': 'command_stamped', 'markers': 'markers'}
+QOS_PROFILES = ('reliable', 'sensor_data')     # values of the nodes' qos_profile parameter
 # Late joiners (recorders, tests) get the last episode events; volatile readers still match.
 EVENT_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -124,10 +129,26 @@ def qos_profile(problem: Problem) -> QoSProfile:
         history=_choice(cfg, 'history', _HISTORY, 'keep_last', problem.source))
 
 
+def topic_qos(problem: Problem, profile: str) -> QoSProfile:
+    """The QoS of the per-step topics under the nodes' ``qos_profile`` parameter:
+    ``reliable``, the problem's ``ros.qos``; ``sensor_data``, best effort keep-last 5."""
+    if profile == 'sensor_data':
+        return qos_profile_sensor_data
+    if profile == 'reliable':
+        return qos_profile(problem)
+    raise ConfigError(f'qos_profile: expected one of {", ".join(QOS_PROFILES)}, '
+                      f'got {profile!r}')
+
+
 def stamp_ns(msg: Any) -> int:
     """A message header's stamp in integer nanoseconds."""
     stamp = msg.header.stamp
     return stamp.sec * 1_000_000_000 + stamp.nanosec
+
+
+def set_stamp(header: Any, ns: int) -> None:
+    """Set a message header's stamp to ``ns`` nanoseconds."""
+    header.stamp.sec, header.stamp.nanosec = divmod(ns, 1_000_000_000)
 
 
 def steady_clock() -> Clock:
@@ -187,7 +208,7 @@ class JointStateLayout:
         for d, j in self.velocity:
             vel[j] = float(s[d])
         eff[self.actuator] = float(effort)
-        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp, 1_000_000_000)
+        set_stamp(msg.header, stamp)
         msg.position = array.array('d', pos)  # array.array skips rosidl's per-item checks
         msg.velocity = array.array('d', vel)
         msg.effort = array.array('d', eff)

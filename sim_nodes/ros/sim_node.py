@@ -2,41 +2,21 @@
 
 ``SimNode`` wraps the same compiled ``mdp_step`` and ``goal_delta`` the batch evaluator
 uses, so a lockstep episode is bit-identical to ``Evaluator.episode`` (docs/ros_interface.md).
-
-Parameters (validated on every change; ``problem`` is read-only):
-
-==================  ========  ==============  ===============================================
-name                type      default         meaning
-==================  ========  ==============  ===============================================
-problem             string    per executable  msg_configs/<problem>.yaml; ``<model>_sim``: the
-                                              model's own, ``sim_node``: acrobot
-mode                string    realtime        ``realtime``: one MDP step per tick of wall time /
-                                              real_time_factor, zero-order hold on the last
-                                              command; ``lockstep``: one MDP step per command
-real_time_factor    double    1.0             > 0; sim time / wall time in realtime mode
-delta               double    episode.delta   goal difficulty: the episode ends in S_delta
-n_step              integer   episode.n_step  the episode ends after this many MDP steps
-auto_reset          bool      true            start a new episode after one ends
-max_episodes        integer   0               auto_reset starts no episode beyond this many
-                                              (0 = unlimited); the reset service still does
-republish_period    double    0.2             [s] lockstep: re-publish the waiting state
-                                              (same stamp) this often; 0 = never
-wait_for_recorder   string    ''              the first episode starts once this recorder
-                                              node is ready (recorder_gate.py); '' = at once
-recorder_timeout    double    60.0            [s] waiting longer stops the node (exit 1)
-==================  ========  ==============  ===============================================
+Its parameters are ``sim_settings.py``'s (validated on every change; ``problem`` and
+``qos_profile`` are read-only); commands are checked as ``commands.py`` says, markers drawn
+as ``markers.py`` says.
 
 Time: every published new state is one tick (``dt * substeps``, 0.05 s for the pendulums)
 of sim time later than the previous one (an MDP step, or the start of an episode), so
 stamps are distinct and monotonic.
 In lockstep the command answering an episode's final state starts the next episode (with
-auto_reset) instead of stepping, so each state gets exactly one command.
+auto_reset) instead of stepping, so each state gets exactly one command; a stamped command
+steps only the state it answers.
 """
 from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass, fields
 from types import SimpleNamespace
 from typing import Any, Callable
 
@@ -48,48 +28,19 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, String
 from std_srvs.srv import Trigger
+from visualization_msgs.msg import MarkerArray
 
-from sim_nodes.errors import ConfigError
-from sim_nodes.ros.common import (CLOCK_QOS, EVENT_QOS, QUIET_PUBLISHER, THROTTLE_S,
-                                  JointStateLayout, qos_profile, run_node, steady_clock,
-                                  topic_names)
 from sim_nodes.goal import goal_arrays, goal_delta
 from sim_nodes.models import MODELS, model_module
 from sim_nodes.models.registry import GENERIC_SIM, sim_executable
 from sim_nodes.problem import load_problem
+from sim_nodes.ros.commands import CommandCheck, StampedCommand
+from sim_nodes.ros.common import (CLOCK_QOS, EVENT_QOS, QUIET_PUBLISHER, JointStateLayout,
+                                  MessageError, run_node, steady_clock, topic_names, topic_qos)
+from sim_nodes.ros.markers import PendulumMarkers
 from sim_nodes.ros.recorder_gate import RecorderGate
-
-MODES = ('realtime', 'lockstep')
-
-
-@dataclass(frozen=True)
-class SimSettings:
-    """The node's changeable parameters (see the module docstring)."""
-
-    mode: str
-    real_time_factor: float
-    delta: float
-    n_step: int
-    auto_reset: bool
-    max_episodes: int
-    republish_period: float
-
-
-def check_setting(name: str, value: Any) -> str | None:
-    """Why ``value`` is not acceptable for parameter ``name``, or None."""
-    if name == 'mode' and value not in MODES:
-        return f'mode: expected one of {", ".join(MODES)}, got {value!r}'
-    if name == 'real_time_factor' and not (math.isfinite(value) and 1e-3 <= value <= 1e4):
-        return f'real_time_factor: expected a number in [0.001, 10000], got {value}'
-    if name == 'delta' and not (math.isfinite(value) and value >= 0):
-        return f'delta: expected a finite number >= 0, got {value}'
-    if name == 'n_step' and value < 1:
-        return f'n_step: expected an integer >= 1, got {value}'
-    if name == 'max_episodes' and value < 0:
-        return f'max_episodes: expected an integer >= 0 (0 = unlimited), got {value}'
-    if name == 'republish_period' and not (math.isfinite(value) and 0 <= value <= 3600):
-        return f'republish_period: expected seconds in [0, 3600], got {value}'
-    return None
+from sim_nodes.ros.sim_settings import (MODES, SimSettings, check_setting,  # noqa: F401
+                                        declare_settings, read_settings)
 
 
 def _json_number(x: float) -> float | None:
@@ -98,7 +49,7 @@ def _json_number(x: float) -> float | None:
 
 
 class SimNode(Node):
-    """Simulates one problem; publishes its state, reward and episode events."""
+    """Simulates one problem; publishes its state, reward, markers and episode events."""
 
     def __init__(self, default_problem: str = 'acrobot', node_name: str = 'sim',
                  **kwargs: Any) -> None:
@@ -111,21 +62,27 @@ class SimNode(Node):
         self._best, self._inv_scale, self._fixed = goal_arrays(problem)
         self._is_angle = problem.is_angle
         self._s0 = problem.initial_state
-        self._limit = float(np.max(np.abs(problem.action_values)))  # actuator limit
         self._tick_ns = round(problem.dt * problem.substeps * 1e9)  # sim time per tick
         self._layout = JointStateLayout(problem)
-        self._declare_settings()
-        self.settings = self._read_settings()
+        self._stamped = StampedCommand(problem)
+        self._markers = PendulumMarkers(problem)
+        self.qos_profile = declare_settings(self, problem)
+        self.settings = read_settings(self)
+        self.commands = CommandCheck(float(np.max(np.abs(problem.action_values))),
+                                     self.get_logger())
 
         topics = topic_names(problem)
-        qos = qos_profile(problem)
+        qos = topic_qos(problem, self.qos_profile)
         quiet = {'event_callbacks': QUIET_PUBLISHER}
         self._state_pub = self.create_publisher(JointState, topics['state'], qos, **quiet)
         self._reward_pub = self.create_publisher(Float64, topics['reward'], qos, **quiet)
+        self._marker_pub = self.create_publisher(MarkerArray, topics['markers'], qos, **quiet)
         self._event_pub = self.create_publisher(String, topics['event'], EVENT_QOS, **quiet)
         self._clock_pub = self.create_publisher(Clock, '/clock', CLOCK_QOS, **quiet)
         self._command_sub = self.create_subscription(Float64, topics['command'],
                                                      self._on_command, qos)
+        self._stamped_sub = self.create_subscription(JointState, topics['command_stamped'],
+                                                     self._on_stamped_command, qos)
         self._reset_srv = self.create_service(Trigger, 'reset', self._on_reset)
         self._step_timer = None
         self._republish_timer = None
@@ -135,6 +92,7 @@ class SimNode(Node):
         self._state_msg = self._layout.new_msg()
         self._reward_msg = Float64()
         self._clock_msg = Clock()
+        self._marker_msg: MarkerArray | None = None
         self._tick = -1                # sim time of the last published state, in ticks
         self._episode = 0              # episodes started
         self._step = 0                 # MDP steps in this episode
@@ -142,11 +100,10 @@ class SimNode(Node):
         self._delta_star = math.inf
         self._effort = 0.0             # applied in the step that produced the state
         self._command = 0.0            # realtime: held command
+        self._late_before = 0          # late commands before this episode
         self._running = False          # an episode is in progress
         self._restart_pending = False  # the next tick starts a new episode
         self.total_steps = 0           # MDP steps simulated by this node
-        self.ignored_commands = 0      # NaN/inf commands
-        self.clamped_commands = 0      # out-of-range commands
 
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
@@ -155,34 +112,9 @@ class SimNode(Node):
         s = self.settings
         self.get_logger().info(
             f'{problem.name} sim: mode {s.mode}, delta {s.delta}, n_step {s.n_step}, '
-            f'actuator limit {self._limit}')
+            f'actuator limit {self.commands.limit}, QoS {self.qos_profile}')
 
     # parameters -------------------------------------------------------------------------
-
-    def _declare_settings(self) -> None:
-        p = self.problem
-        self.declare_parameter('mode', 'realtime', ParameterDescriptor(
-            description='realtime | lockstep'))
-        self.declare_parameter('real_time_factor', 1.0, ParameterDescriptor(
-            description='sim time / wall time in realtime mode (> 0)'))
-        self.declare_parameter('delta', p.default_delta, ParameterDescriptor(
-            description='goal difficulty: the episode ends in S_delta'))
-        self.declare_parameter('n_step', p.n_step, ParameterDescriptor(
-            description='MDP steps per episode at most'))
-        self.declare_parameter('auto_reset', True, ParameterDescriptor(
-            description='start a new episode after one ends'))
-        self.declare_parameter('max_episodes', 0, ParameterDescriptor(
-            description='auto_reset starts no episode beyond this many (0 = unlimited)'))
-        self.declare_parameter('republish_period', 0.2, ParameterDescriptor(
-            description='[s] lockstep: re-publish the waiting state this often (0 = never)'))
-
-    def _read_settings(self) -> SimSettings:
-        values = {f.name: self.get_parameter(f.name).value for f in fields(SimSettings)}
-        for key, value in values.items():
-            reason = check_setting(key, value)
-            if reason:
-                raise ConfigError(f'{self.get_name()}: parameter {reason}')
-        return SimSettings(**values)
 
     def _validate_parameters(self, params: list[Parameter]) -> SetParametersResult:
         for param in params:
@@ -192,7 +124,7 @@ class SimNode(Node):
         return SetParametersResult(successful=True)
 
     def _apply_parameters(self, params: list[Parameter]) -> None:
-        old, self.settings = self.settings, self._read_settings()
+        old, self.settings = self.settings, read_settings(self)
         if (old.mode, old.real_time_factor, old.republish_period) != (
                 self.settings.mode, self.settings.real_time_factor,
                 self.settings.republish_period):
@@ -210,27 +142,45 @@ class SimNode(Node):
         if s.mode == 'realtime':
             self._step_timer = self.create_timer(period, self._on_step_timer,
                                                  clock=steady_clock())
-        elif s.republish_period > 0:
+            return
+        if self.qos_profile == 'sensor_data':
+            self.get_logger().warning('lockstep over best-effort QoS (sensor_data): a lost '
+                                      'command stalls the episode')
+        if s.republish_period > 0:
             self._republish_timer = self.create_timer(s.republish_period, self._on_republish,
                                                       clock=steady_clock())
 
     # callbacks ----------------------------------------------------------------------------
 
     def _on_command(self, msg: Float64) -> None:
-        value = msg.data
-        if not math.isfinite(value):
-            self.ignored_commands += 1
-            self.get_logger().warning(f'ignoring non-finite command {value}',
-                                      throttle_duration_sec=THROTTLE_S)
+        """Hand-use command (no stamp): lockstep takes it as the current state's answer."""
+        value = self.commands.value(msg.data)
+        if value is None:
             return
-        if abs(value) > self._limit:
-            self.clamped_commands += 1
-            self.get_logger().warning(f'command {value} clamped to the actuator limit '
-                                      f'{self._limit}', throttle_duration_sec=THROTTLE_S)
-            value = math.copysign(self._limit, value)
         if self.settings.mode == 'lockstep':
             self._advance(value)
         else:
+            self._command = value
+
+    def _on_stamped_command(self, msg: JointState) -> None:
+        """The policy node's answer to the state stamped ``header.stamp``."""
+        try:
+            answered, value = self._stamped.read(msg)
+        except MessageError as exc:
+            self.commands.reject(f'stamped command: {exc}')
+            return
+        value = self.commands.value(value)
+        if value is None:
+            return
+        current = self._tick * self._tick_ns
+        if self.settings.mode == 'lockstep':
+            if answered != current:
+                self.commands.count_late(answered, current, applied=False)
+                return
+            self._advance(value)
+        else:
+            if answered < current:
+                self.commands.count_late(answered, current, applied=True)
             self._command = value
 
     def _on_step_timer(self) -> None:
@@ -239,6 +189,8 @@ class SimNode(Node):
     def _on_republish(self) -> None:
         if self._tick >= 0:             # a state was published (the recorder gate is open)
             self._state_pub.publish(self._state_msg)
+            if self._marker_msg is not None:
+                self._marker_pub.publish(self._marker_msg)
 
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response
                   ) -> Trigger.Response:
@@ -283,6 +235,7 @@ class SimNode(Node):
         self._step = 0
         self._return = 0.0
         self._effort = 0.0
+        self._late_before = self.commands.late
         self._delta_star = d = self._delta_of_state()
         self._running = True
         self._restart_pending = False
@@ -303,19 +256,25 @@ class SimNode(Node):
     # publishing ---------------------------------------------------------------------------
 
     def _publish_state(self) -> None:
-        """Publish the state (and /clock) at the current tick."""
+        """Publish the state (its markers and /clock) at the current tick."""
         ns = self._tick * self._tick_ns
         self._layout.fill(self._state_msg, self._s, self._effort, ns)
         self._state_pub.publish(self._state_msg)
-        self._clock_msg.clock = self._state_msg.header.stamp
-        self._clock_pub.publish(self._clock_msg)
+        s = self.settings
+        self._marker_msg = self._markers.state(self._s, ns, s.delta) if s.markers else None
+        if self._marker_msg is not None:
+            self._marker_pub.publish(self._marker_msg)
+        if s.publish_clock:
+            self._clock_msg.clock = self._state_msg.header.stamp
+            self._clock_pub.publish(self._clock_msg)
 
     def _publish_event(self, event: str, d: float) -> None:
         doc = {'event': event, 'episode': self._episode, 'step': self._step,
                'return': self._return, 'delta': _json_number(d),
                'delta_star': _json_number(self._delta_star),
                'goal_delta': self.settings.delta,
-               'time': self._tick * self._tick_ns / 1e9}  # sim time of the state [s]
+               'time': self._tick * self._tick_ns / 1e9,   # sim time of the state [s]
+               'late_commands': self.commands.late - self._late_before}
         self._event_pub.publish(String(data=json.dumps(doc)))
 
 
