@@ -103,8 +103,9 @@ def format_summary(s: dict[str, Any]) -> str:
         lines.append(f'note:      {s["problem_error"]}')
     lines.append('topics:')
     width = max([len(t['topic']) for t in s['topics']] + [5])
+    type_width = max([len(t['type']) for t in s['topics']] + [28])
     for t in s['topics']:
-        lines.append(f'  {t["topic"]:<{width}}  {t["type"]:<28} {t["count"]:>8}')
+        lines.append(f'  {t["topic"]:<{width}}  {t["type"]:<{type_width}} {t["count"]:>8}')
     for topic, why in s['undecodable_topics'].items():
         lines.append(f'  {topic}: not decoded ({why})')
     if s['malformed_events']:
