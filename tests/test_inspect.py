@@ -25,7 +25,8 @@ from sim_nodes.goal import delta_of
 from sim_nodes.problem import load_problem
 
 TOPICS = {'state': '/joint_states', 'command': '/command', 'reward': '/reward',
-          'event': '/episode_event', 'exemplar': '/exemplar_index'}
+          'event': '/episode_event', 'exemplar': '/exemplar_index',
+          'command_stamped': '/command_stamped'}
 
 
 def acrobot_states(n: int) -> list[list[float]]:
@@ -49,9 +50,12 @@ def new_bag(path: Path, metadata: dict | None, chunk_size: int = 1024) -> BagWri
 
 
 def write_recording(path_dir: Path, problem_name: str, episodes: list[dict], *,
-                    chunk_size: int = 1024, metadata: bool = True) -> Path:
-    """A one-file bag of the given episodes (dicts of states, commands, rewards, end);
-    returns its storage file (the bag directory is its parent)."""
+                    chunk_size: int = 1024, metadata: bool = True,
+                    stamped: bool = False) -> Path:
+    """A one-file bag of the given episodes (dicts of states, commands, rewards, end, and
+    optionally late: the end event's late_commands); commands on ``command`` or, if
+    ``stamped``, on ``command_stamped`` as the policy node answers; returns its storage file
+    (the bag directory is its parent)."""
     problem = load_problem(problem_name)
     meta = {'problem': problem_name, 'delta': '0.02',
             'topics': json.dumps(TOPICS)} if metadata else None
@@ -69,14 +73,23 @@ def write_recording(path_dir: Path, problem_name: str, episodes: list[dict], *,
             for k, s in enumerate(ep['states']):
                 put(writer, 'state', joint_state(problem, s, step[0]))
                 step[0] += 1
-                if k < len(ep['commands']):
+                if k < len(ep['commands']) and stamped:
+                    answer = joint_state(problem, s, step[0] - 1)
+                    answer.name, answer.position, answer.velocity = \
+                        [problem.actuator_joint], [], []
+                    answer.effort = [ep['commands'][k]]
+                    put(writer, 'command_stamped', answer)
+                elif k < len(ep['commands']):
                     put(writer, 'command', Float64(data=ep['commands'][k]))
+                if k < len(ep['commands']):
                     put(writer, 'exemplar', Int32(data=k % 5))
                     put(writer, 'reward', Float64(data=ep['rewards'][k]))
             end = {'event': ep['end'], 'episode': number, 'step': len(ep['rewards']),
                    'return': sum(ep['rewards']), 'goal_delta': 0.02,
                    'delta_star': min(delta_of(problem, s) for s in ep['states']),
                    'time': (step[0] - 1) * 0.05}
+            if 'late' in ep:
+                end['late_commands'] = ep['late']
             put(writer, 'event', String(data=json.dumps(end)))
     return writer.paths[0]
 
@@ -144,6 +157,30 @@ def test_json_gives_back_the_known_episode_numbers(capsys, acrobot_file, whole_b
     assert got[1]['reached_goal'] is True and got[1]['steps_to_goal'] == 24
     assert got[1]['delta_star'] == 0.0 and got[1]['achieved'] is True
     assert summary['episodes_reaching_goal'] == 1
+
+
+def test_stamped_commands_count_as_the_answers_to_their_states(capsys, tmp_path):
+    """Commands on command_stamped (as the policy node sends them) go to the episode of the
+    state they answer, with that state's stamp; late_commands comes from the end event."""
+    from sapga_ros.recording.inspect import summarize
+
+    eps = [dict(episode(acrobot_states(12), 'step_limit'), late=2),
+           episode(acrobot_states(9), 'goal')]
+    path = write_recording(tmp_path, 'acrobot', eps, stamped=True)
+    rc, summary, err = inspect_json(capsys, path.parent)
+    assert rc == 0 and err == ''
+    roles = {t['topic']: t['role'] for t in summary['topics']}
+    assert roles['/command_stamped'] == 'command_stamped'
+    for got, ep in zip(summary['episodes'], eps):
+        assert got['actions'] == {'-2': ep['commands'].count(-2.0),
+                                  '0': ep['commands'].count(0.0),
+                                  '2': ep['commands'].count(2.0)}
+        assert got['messages']['commands'] == len(ep['commands'])
+        assert got['late_commands'] == ep.get('late')
+    _, episodes, _ = summarize(read_recording(path.parent))
+    for ep in episodes:
+        stamps, _ = ep.trajectory()
+        assert [t for t, _ in ep.commands] == list(stamps[:-1])   # each its state's stamp
 
 
 def test_text_summary_names_topics_and_episodes(capsys, acrobot_file):

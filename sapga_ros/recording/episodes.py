@@ -248,6 +248,8 @@ def episode_summary(ep: Episode, problem: Any, goal_delta: float | None) -> dict
         'messages': {'states': len(ep.states), 'rewards': len(ep.rewards),
                      'commands': len(ep.commands)},
         'final_delta': _json_number(finite(ev.get('delta'))),
+        'late_commands': ev.get('late_commands') if isinstance(ev.get('late_commands'), int)
+        and not isinstance(ev.get('late_commands'), bool) else None,
         'return_from_rewards': _json_number(ret_rewards),
         'delta_star_from_states': _json_number(delta_states),
     }
