@@ -136,6 +136,7 @@ def test_realtime_applies_the_latest_command_and_counts_late_ones(ros, acrobot):
     ros.wait_for(lambda: len(probe.states) > 5, 'realtime steps')
     probe.answer(-2.0, 0)                     # answers the first state: long gone
     ros.wait_for(lambda: sim.commands.late == 1, 'the late command counted')
+    episode = sim._episode                    # the episode it arrived in
     held = ros.wait_for(lambda: next((t for t, m in list(probe.states.items())
                                       if m.effort[layout.actuator] == -2.0), None),
                         'a step with the late command')
@@ -144,7 +145,7 @@ def test_realtime_applies_the_latest_command_and_counts_late_ones(ros, acrobot):
     ros.wait_for(lambda: any(m.effort[layout.actuator] == 2.0 for t, m in
                              list(probe.states.items()) if t > held), 'the next command held')
     assert sim.commands.late == 1
-    end = ros.wait_for(lambda: probe.end_of(1), 'the end of episode 1', timeout=30)
+    end = ros.wait_for(lambda: probe.end_of(episode), f'the end of episode {episode}')
     assert end['late_commands'] == 1
 
 
