@@ -47,3 +47,22 @@ def seed() -> int:
 def rng(seed: int) -> np.random.Generator:
     """A generator seeded with the suite's seed, fresh for each test."""
     return np.random.default_rng(seed)
+
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    parser.addoption('--slow', action='store_true',
+                     help='also run the tests marked slow (minutes each; a smaller form of '
+                          'each runs by default)')
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    config.addinivalue_line('markers', 'slow: takes minutes; skipped unless pytest --slow')
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    if config.getoption('--slow'):
+        return
+    skip = pytest.mark.skip(reason='slow: run with pytest --slow')
+    for item in items:
+        if 'slow' in item.keywords:
+            item.add_marker(skip)

@@ -88,7 +88,8 @@ def test_ql_training_writes_an_evaluable_table(tmp_path):
     (['train', '--problem', 'acrobot', '--steps', '-5'], 'positive integer'),
     (['train', '--problem', 'acrobot', '--delta', 'nan'], 'finite delta'),
     (['eval', 'missing.json'], 'cannot read'),
-    (['train', '--problem', 'acrobot', '--resume'], '--resume needs --checkpoint'),
+    (['train', '--problem', 'acrobot', '--resume'], 'no checkpoint to resume from'),
+    (['train', '--resume'], '--resume needs --checkpoint DIR'),
 ])
 def test_user_errors_print_one_line_and_exit_nonzero(args, needle, tmp_path):
     """Bad options print one clear line naming the problem, no traceback, status 2."""

@@ -93,7 +93,7 @@ def test_resume_refuses_a_checkpoint_of_another_run(tmp_path):
     ck = tmp_path / 'ck'
     _run(TrainConfig(problem='acrobot', steps=20_000, seed=1, params=SMALL,
                      checkpoint=str(ck)))
-    with pytest.raises(CheckpointError, match='another run'):
+    with pytest.raises(CheckpointError, match='checkpoint is of seed 1; this run: seed 2$'):
         _run(TrainConfig(problem='acrobot', steps=40_000, seed=2, params=SMALL,
                          checkpoint=str(ck), resume=True))
 

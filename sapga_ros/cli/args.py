@@ -2,7 +2,10 @@
 
 ``add_settings(parser, cls)`` adds one option per ``setting`` field of ``cls``
 (``sapga_ros.optim.settings``): its flag, its default, its help, a type that refuses values
-outside the field's bounds with one line saying what is expected.
+outside the field's bounds with one line saying what is expected; the names of the options
+given on the command line are collected in ``args.given`` (``--resume`` takes the others
+from the checkpoint).  ``check_output_file`` and ``check_output_dir`` refuse, before any
+work, outputs that cannot be written; neither creates a folder that does not exist.
 """
 from __future__ import annotations
 
@@ -57,16 +60,27 @@ def _number(s: Setting):
     return parse
 
 
+class _Given(argparse.Action):
+    """Store the option's value (``const`` for a flag) and add its name to ``given``."""
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
+                 values: object, option_string: str | None = None) -> None:
+        setattr(namespace, self.dest, self.const if self.nargs == 0 else values)
+        namespace.given = frozenset(getattr(namespace, 'given', ())) | {self.dest}
+
+
 def add_settings(parser: argparse.ArgumentParser, cls: type) -> None:
     """One option per ``setting`` field of ``cls`` offered on the command line (dest: the
-    field's name)."""
+    field's name; ``given``: the names of those on the command line)."""
+    parser.set_defaults(given=frozenset())
     for f, s in described(cls):
         if not s.cli:
             continue
         kind = kind_of(f)
-        how = {'dest': f.name, 'default': f.default, 'help': f'{s.help} (default {f.default})'}
+        how = {'dest': f.name, 'default': f.default, 'help': f'{s.help} (default {f.default})',
+               'action': _Given}
         if kind is bool:
-            how.update(action='store_true', help=s.help)
+            how.update(nargs=0, const=True, help=s.help)
         elif s.choices:
             how.update(choices=s.choices)
         elif kind is int:
@@ -78,12 +92,31 @@ def add_settings(parser: argparse.ArgumentParser, cls: type) -> None:
 
 
 def check_output_file(path: Path, option: str) -> None:
-    """Refuse, before any work is done, an output path that cannot be written."""
+    """Refuse, before any work is done, an output file that cannot be written: a directory,
+    a file in a folder that does not exist (none is created), an unwritable one."""
     if path.is_dir():
         raise SapgaError(f'{option} {path}: is a directory')
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise SapgaError(f'{option} {path}: cannot create its folder ({exc.strerror})') from exc
-    if not os.access(path.parent, os.W_OK) or (path.exists() and not os.access(path, os.W_OK)):
+    _check_folder(path, option)
+    if path.exists() and not os.access(path, os.W_OK):
         raise SapgaError(f'{option} {path}: not writable')
+
+
+def check_output_dir(path: Path, option: str) -> None:
+    """Refuse an output directory that cannot be used: one that is a file, or, if it does
+    not exist yet, whose parent folder does not exist or cannot be written."""
+    if path.exists():
+        if not path.is_dir():
+            raise SapgaError(f'{option} {path}: exists and is not a directory')
+        if not os.access(path, os.W_OK | os.X_OK):
+            raise SapgaError(f'{option} {path}: not writable')
+        return
+    _check_folder(path, option)
+
+
+def _check_folder(path: Path, option: str) -> None:
+    folder = path.parent
+    if not folder.is_dir():
+        what = 'is not a folder' if folder.exists() else 'does not exist'
+        raise SapgaError(f'{option} {path}: {folder} {what}')
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise SapgaError(f'{option} {path}: folder {folder} is not writable')

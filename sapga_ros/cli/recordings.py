@@ -6,15 +6,18 @@
 ``inspect`` summarises a rosbag2 bag directory or one MCAP file (``recording/inspect.py``)
 and plots one episode (``viz/episode_plot.py``); a recording cut short is summarised as far
 as it can be read, with a warning on stderr.  ``bag reindex`` completes a killed recording,
-like ``ros2 bag reindex`` (``recording/repair.py``).  Unreadable input: one line on stderr,
-exit status 2.
+like ``ros2 bag reindex`` (``recording/repair.py``).  Unreadable input, an episode not in
+the recording, a plot file that cannot be written (a directory, a missing folder): one line
+on stderr, exit status 2.
 """
 from __future__ import annotations
 
 import argparse
 import json
 import sys
+from pathlib import Path
 
+from sapga_ros.cli.args import check_output_file
 from sapga_ros.errors import McapError, SapgaError
 
 EXIT_USAGE = 2
@@ -41,6 +44,8 @@ def inspect_summary(path: str, plot: str | None = None, episode: int | None = No
     from sapga_ros.recording.inspect import fmt, pick_episode, summarize
     from sapga_ros.recording.reader import read_recording
 
+    if plot:
+        check_output_file(Path(plot), '--plot')
     rec = read_recording(path)
     try:
         summary, episodes, problem = summarize(rec)

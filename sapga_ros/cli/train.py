@@ -2,8 +2,12 @@
 
 Its options are the run's files (``--problem``, ``--delta``, ``--out``, ``--checkpoint``,
 ``--init``, ``--quiet``) and, generated from the config dataclasses (``TrainConfig``,
-``SapgaParams``, ``QlParams``; defaults, help and bounds written there), the run's settings.
-Ctrl-C finishes the current round and still writes the best policy, log and checkpoint.
+``SapgaParams``, ``QlParams``; defaults, help and bounds written there), the run's settings;
+``train_plan.py`` turns them into a run and its files (``--resume``: the checkpoint's
+settings).  The best policy so far, the log and the checkpoint are saved at least every
+``--checkpoint-seconds`` (30 s), so a killed run loses at most that.  Ctrl-C or SIGTERM
+finishes the current round and still writes the best policy, log and checkpoint (exit
+status 130 or 143); a second one abandons the round.
 """
 from __future__ import annotations
 
@@ -11,9 +15,9 @@ import argparse
 import signal
 import sys
 import time
-from pathlib import Path
 
-from sapga_ros.cli.args import add_settings, check_output_file, delta_value
+from sapga_ros.cli.args import add_settings, delta_value
+from sapga_ros.cli.train_plan import plan
 from sapga_ros.errors import SapgaError
 from sapga_ros.optim.qlearner import QlParams
 from sapga_ros.optim.sapga import SapgaParams
@@ -21,14 +25,20 @@ from sapga_ros.optim.settings import build
 from sapga_ros.training.loop import TrainConfig
 
 SETTINGS = (TrainConfig, SapgaParams, QlParams)
+SIGNALS = {signal.SIGINT: 'Ctrl-C', signal.SIGTERM: 'SIGTERM'}
 
 
 def add_train_arguments(t: argparse.ArgumentParser) -> None:
-    t.add_argument('--problem', required=True, help='problem name (msg_configs/<name>.yaml)')
+    t.add_argument('--problem', help='problem name (msg_configs/<name>.yaml); required but '
+                                     'with --resume, which takes the checkpoint\'s')
     t.add_argument('--delta', type=delta_value, help='goal difficulty (default: the problem\'s)')
-    t.add_argument('--out', help='policy file to write (default runs/<problem>-<method>-'
-                                 'seed<seed>.json); the log goes beside it as .log.csv')
-    t.add_argument('--checkpoint', metavar='DIR', help='write checkpoints into DIR')
+    t.add_argument('--out', help='policy file to write, in an existing folder (default runs/'
+                                 '<problem>-<method>-seed<seed>.json); the log goes beside it '
+                                 'as .log.csv')
+    t.add_argument('--checkpoint', metavar='DIR',
+                   help='checkpoint directory (default: beside the policy file, <out without '
+                        '.json>.ckpt/); --resume continues its run, taking every setting not '
+                        'given from it')
     t.add_argument('--init', action='append', default=[], metavar='FILE',
                    help='policy file of hand-written exemplars to seed the population '
                         '(repeatable; SAP-GA only)')
@@ -38,7 +48,8 @@ def add_train_arguments(t: argparse.ArgumentParser) -> None:
 
 
 def train_config(args: argparse.Namespace, problem: str) -> TrainConfig:
-    """The run the parsed options describe."""
+    """The run the parsed options describe, without reading a checkpoint (``plan`` is what
+    ``sapga train`` runs)."""
     value = lambda name: getattr(args, name)  # noqa: E731
     return build(TrainConfig, value, problem=problem, delta=args.delta,
                  checkpoint=args.checkpoint, params=build(SapgaParams, value),
@@ -77,8 +88,9 @@ def cmd_train(args: argparse.Namespace) -> int:
     from sapga_ros.training.loop import train, write_log
     from sim_nodes.problem import load_problem
 
-    problem = load_problem(args.problem)
-    config = train_config(args, problem.name)
+    run = plan(args)
+    config = run.config
+    problem = load_problem(config.problem)
     initial = [load_policy(f, problem) for f in args.init]
     if initial and config.method != 'sapga':
         raise SapgaError('--init seeds a SAP-GA population; Q-learning takes none')
@@ -86,34 +98,33 @@ def cmd_train(args: argparse.Namespace) -> int:
         if policy.style != config.params.style:
             raise SapgaError(f'{f}: a {policy.style} policy cannot seed a '
                              f'{config.params.style} run (--style {policy.style})')
-    out = Path(args.out) if args.out else \
-        Path('runs') / f'{problem.name}-{config.method}-seed{config.seed}.json'
-    check_output_file(out, '--out')
-    if args.checkpoint and Path(args.checkpoint).exists() and not Path(args.checkpoint).is_dir():
-        raise SapgaError(f'--checkpoint {args.checkpoint}: exists and is not a directory')
     progress = _Progress(config.steps, args.quiet)
-    interrupted = []
+    received: list[int] = []
 
-    def on_sigint(signum, frame):  # finish the round, then save what was found
-        if interrupted:
+    def on_signal(signum: int, frame: object) -> None:  # finish the round, then save
+        if received:
             raise KeyboardInterrupt
-        interrupted.append(signum)
-        print('\nsapga train: interrupted; saving the best so far (Ctrl-C again to abandon)',
-              file=sys.stderr)
+        received.append(signum)
+        print(f'\nsapga train: {SIGNALS[signum]}: saving the best so far after this round '
+              '(again to abandon it)', file=sys.stderr, flush=True)
 
-    previous = signal.signal(signal.SIGINT, on_sigint)
+    def on_save(policy: object, history: list[dict]) -> None:
+        policy.save(run.out)
+        write_log(run.log, history)
+
+    previous = {s: signal.signal(s, on_signal) for s in SIGNALS}
     try:
-        result = train(config, initial, progress, should_stop=lambda: bool(interrupted))
+        result = train(config, initial, progress, should_stop=lambda: bool(received),
+                       on_save=on_save)
     finally:
-        signal.signal(signal.SIGINT, previous)
+        for s, handler in previous.items():
+            signal.signal(s, handler)
         progress.close()
-    result.policy.save(out)
-    log = out.with_suffix('.log.csv')
-    write_log(log, result.history)
+    on_save(result.policy, result.history)
     meta = result.policy.meta
     print(f"{problem.name} {config.method}: best value {meta['value']:.3f}, policy delta* "
           f"{meta['delta_star']:.4f}, run delta* {meta['run_delta_star']:.4f} "
           f"({'achieved' if meta['run_delta_star'] <= meta['delta'] else 'not achieved'} "
           f"delta {meta['delta']}), {meta['steps']:,d} steps")
-    print(f'policy: {out}\nlog: {log}')
-    return 130 if interrupted else 0
+    print(f'policy: {run.out}\nlog: {run.log}\ncheckpoint: {run.checkpoint}')
+    return 128 + received[0] if received else 0

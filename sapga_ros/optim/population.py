@@ -3,7 +3,7 @@
 ``pack`` lays a list of individuals out as flat arrays (exemplar records concatenated, one
 length per policy); ``unpack`` reads them back, refusing counts that do not add up,
 non-finite states and action indices out of range (a checkpoint is read without pickle and
-trusted no further than that).
+trusted no further than that: shapes, types and counts are checked before use).
 """
 from __future__ import annotations
 
@@ -31,6 +31,9 @@ class Individual:
     @property
     def known(self) -> bool:
         return not math.isnan(self.value)
+
+
+PER_POLICY = ('values', 'delta_star', 'steps', 'reached', 'has_used')   # one entry a policy
 
 
 def pack(individuals: list[Individual], prefix: str) -> dict[str, np.ndarray]:
@@ -63,10 +66,15 @@ def unpack(problem: Problem, arrays: dict[str, np.ndarray], prefix: str,
         lengths = arrays[f'{prefix}_lengths']
         states, actions = arrays[f'{prefix}_states'], arrays[f'{prefix}_actions']
         used = arrays[f'{prefix}_used']
-        if lengths.dtype.kind not in 'iu' or np.any(lengths < 1) or \
+        per_policy = [arrays[f'{prefix}_{k}'] for k in PER_POLICY]
+        if lengths.dtype.kind not in 'iu' or lengths.ndim != 1 or np.any(lengths < 1) or \
                 lengths.sum() != len(actions) or len(states) != len(actions) or \
-                len(used) != len(actions):
+                len(used) != len(actions) or \
+                any(a.ndim != 1 or len(a) != len(lengths) for a in per_policy):
             raise ValueError('exemplar counts do not add up')
+        if states.ndim != 2 or states.shape[1] != problem.dim or actions.ndim != 1 or \
+                actions.dtype.kind not in 'iu' or used.ndim != 1 or used.dtype != np.bool_:
+            raise ValueError('exemplar arrays of the wrong shape or type')
         if not np.all(np.isfinite(states)) or np.any(actions < 0) or \
                 np.any(actions >= len(problem.actions)):
             raise ValueError('non-finite states or action indices out of range')

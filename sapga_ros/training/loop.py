@@ -5,13 +5,17 @@ the Q-learning baseline) until the MDP-step budget is spent (checked after each 
 round, so a run simulates at most one generation, or one episode, more) or ``should_stop()``
 says so: it evaluates what ``ask()`` hands out in one parallel batch, tells the measures,
 logs a progress row per round (the optimizer's counters, ``achieved``, ``steps_per_s``),
-checkpoints every ``checkpoint_every`` rounds and at the end, and returns the best policy
-with its provenance in ``meta``.  Same seed, same result, with or without checkpoint/resume.
+saves at least every ``checkpoint_seconds`` of wall time (and every ``checkpoint_every``
+rounds, if set) and at the end, and returns the best policy with its provenance in ``meta``.
+A save writes the checkpoint (``training/checkpoints.py``) and hands the best policy so far
+and the log to ``on_save``, which writes them where the caller keeps them: a killed run
+loses at most one period.  Same seed, same result, with or without checkpoint/resume.
 The CLI, the trainer node and the experiments all train through it.
 """
 from __future__ import annotations
 
 import csv
+import io
 import json
 import time
 from dataclasses import dataclass, field, replace
@@ -24,11 +28,12 @@ from sapga_ros import __version__
 from sapga_ros.errors import CheckpointError, ConfigError
 from sapga_ros.evaluation.evaluator import Evaluator, set_jobs
 from sapga_ros.exemplars.policy import ExemplarPolicy
-from sapga_ros.io.checkpoint import load_checkpoint, save_checkpoint
+from sapga_ros.io.atomic import write_atomic
 from sapga_ros.optim.base import Optimizer
 from sapga_ros.optim.qlearner import QLearning, QlParams
 from sapga_ros.optim.sapga import SapGA, SapgaParams
 from sapga_ros.optim.settings import check, setting
+from sapga_ros.training import checkpoints
 from sim_nodes.problem import Problem, load_problem
 
 METHODS: dict[str, type[Optimizer]] = {'sapga': SapGA, 'ql': QLearning}
@@ -47,8 +52,11 @@ class TrainConfig:
     seed: int = setting(0, 'seed of every random choice of the run', low=0)
     jobs: int = setting(0, 'evaluation threads; 0: every core', low=0)
     checkpoint: str | None = None          # directory for checkpoint.npz; None: none
-    checkpoint_every: int = setting(20, 'rounds (SAP-GA generations, Q-learning chunks) '
-                                    'between checkpoints', low=1)
+    checkpoint_seconds: float = setting(30.0, '[s] of wall time at most between saves of the '
+                                        'checkpoint and the best policy so far', low=0.01,
+                                        high=86400.0)
+    checkpoint_every: int = setting(0, 'rounds (SAP-GA generations, Q-learning chunks) '
+                                    'between checkpoints besides; 0: by time only', low=0)
     resume: bool = setting(False, 'continue from the checkpoint in the checkpoint directory')
     params: SapgaParams = field(default_factory=SapgaParams)
     ql: QlParams = field(default_factory=QlParams)
@@ -76,14 +84,15 @@ def json_roundtrip(obj: Any) -> Any:
     return json.loads(json.dumps(obj))
 
 
-def _run_settings(config: TrainConfig, problem: Problem, delta: float) -> dict:
+def run_settings(config: TrainConfig, problem: Problem, delta: float) -> dict:
     """What a checkpoint must share with the run that resumes it."""
     cls = METHODS[config.method]
     return json_roundtrip({'problem': problem.name, 'method': config.method, 'delta': delta,
-                           'seed': config.seed, **cls.settings(problem, _params(config))})
+                           'seed': config.seed, **cls.settings(problem, method_params(config))})
 
 
-def _params(config: TrainConfig) -> SapgaParams | QlParams:
+def method_params(config: TrainConfig) -> SapgaParams | QlParams:
+    """The strategy parameters of the run's method."""
     return config.params if config.method == 'sapga' else config.ql
 
 
@@ -98,25 +107,17 @@ def _start(config: TrainConfig, problem: Problem, delta: float,
         return QLearning.create(problem, config.ql, config.seed, delta, config.steps), []
     if not config.checkpoint:
         raise CheckpointError('--resume needs --checkpoint DIR')
-    meta, arrays = load_checkpoint(config.checkpoint)
-    want = _run_settings(config, problem, delta)
-    if meta.get('run') != want:
-        raise CheckpointError(f'{config.checkpoint}: checkpoint is of another run '
-                              f'({meta.get("run")}), not {want}')
-    try:
-        opt = METHODS[config.method].from_state(problem, _params(config), (meta, arrays),
-                                                delta=delta, budget=config.steps)
-    except CheckpointError as exc:
-        raise CheckpointError(f'{config.checkpoint}: {exc}') from exc
-    history = meta.get('history', [])
-    return opt, list(history) if isinstance(history, list) else []
+    cls, params = METHODS[config.method], method_params(config)
+    return checkpoints.restore(
+        config.checkpoint, run_settings(config, problem, delta),
+        lambda state: cls.from_state(problem, params, state, delta=delta, budget=config.steps))
 
 
 def _save(config: TrainConfig, problem: Problem, delta: float, opt: Optimizer,
           history: list[dict]) -> None:
-    meta, arrays = opt.state_dict()
-    save_checkpoint(config.checkpoint, {'run': _run_settings(config, problem, delta), **meta,
-                                        'history': history}, arrays)
+    settings = {k: v for k, v in checkpoints.settings_of(config).items() if k != 'resume'}
+    checkpoints.save(config.checkpoint, run_settings(config, problem, delta),
+                     json_roundtrip(settings), opt, history)
 
 
 def _evaluate(evaluator: Evaluator, batch: list) -> tuple:
@@ -130,19 +131,22 @@ def _evaluate(evaluator: Evaluator, batch: list) -> tuple:
 def train(config: TrainConfig, initial: list[ExemplarPolicy] = (),
           progress: Progress | None = None,
           on_best: Callable[[Any], None] | None = None,
-          should_stop: Callable[[], bool] | None = None) -> TrainResult:
+          should_stop: Callable[[], bool] | None = None,
+          on_save: Callable[[Any, list[dict]], None] | None = None) -> TrainResult:
     """Run ``config.method`` as configured; return the best policy and the log.
 
     ``progress(row)`` is called after each round, ``on_best(policy)`` whenever the best
-    (of an optimizer that follows one: SAP-GA) improves, the policy carrying its meta, and
-    the run ends early, with its best so far, once ``should_stop()`` is true.
+    (of an optimizer that follows one: SAP-GA) improves, the policy carrying its meta;
+    ``on_save(policy, history)`` with the best policy so far and the log at each save before
+    the end (the caller writes the end's); the run ends early, with its best so far, once
+    ``should_stop()`` is true.
     """
     problem = load_problem(config.problem)
     delta = float(problem.default_delta if config.delta is None else config.delta)
     jobs = set_jobs(config.jobs)
     evaluator = Evaluator(problem, delta)
     opt, history = _start(config, problem, delta, list(initial))
-    start = time.perf_counter()
+    start = last_save = time.perf_counter()
     steps_at_start = opt.steps
     while not (reasons := opt.stop(config.steps)):
         if should_stop and should_stop():
@@ -153,14 +157,20 @@ def train(config: TrainConfig, initial: list[ExemplarPolicy] = (),
         if on_best and opt.best is not best_before:
             on_best(_best_policy(config, opt, delta, jobs))
         row = opt.counters()
-        elapsed = time.perf_counter() - start
+        now = time.perf_counter()
         row.update(achieved=row['delta_star'] <= delta,
-                   steps_per_s=(opt.steps - steps_at_start) / max(elapsed, 1e-9))
+                   steps_per_s=(opt.steps - steps_at_start) / max(now - start, 1e-9))
         history.append(row)
         if progress:
             progress(row)
-        if config.checkpoint and opt.iteration % config.checkpoint_every == 0:
+        timely = now - last_save >= config.checkpoint_seconds
+        if config.checkpoint and (timely or config.checkpoint_every and
+                                  opt.iteration % config.checkpoint_every == 0):
             _save(config, problem, delta, opt, history)
+        if timely:
+            if on_save:
+                on_save(_best_policy(config, opt, delta, jobs), history)
+            last_save = time.perf_counter()
     if config.checkpoint:
         _save(config, problem, delta, opt, history)
     return TrainResult(_best_policy(config, opt, delta, jobs), history, opt.counters(),
@@ -188,13 +198,13 @@ def _best_policy(config: TrainConfig, opt: Optimizer, delta: float, jobs: int) -
 
 
 def write_log(path: Path, history: list[dict]) -> None:
-    """Write a run's log rows (one per progress report) as CSV (columns: every key, in order
-    of appearance; a row resumed from an older checkpoint may lack some)."""
+    """Write a run's log rows (one per progress report) as CSV, atomically (columns: every
+    key, in order of appearance; a row resumed from an older checkpoint may lack some)."""
     if not history:
         return
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, 'w', newline='', encoding='utf-8') as f:
-        writer = csv.DictWriter(f, fieldnames=list(dict.fromkeys(k for row in history
-                                                                 for k in row)))
-        writer.writeheader()
-        writer.writerows(history)
+    text = io.StringIO(newline='')
+    columns = list(dict.fromkeys(k for row in history for k in row))
+    writer = csv.DictWriter(text, fieldnames=columns)
+    writer.writeheader()
+    writer.writerows(history)
+    write_atomic(path, text.getvalue())
