@@ -1,10 +1,11 @@
 """Trainer node (sapga_ros/nodes/trainer_node.py) over real Fast DDS: the best policy served on
-get_policy during and after training, the hand-off to the policy node, the train service,
-/diagnostics, Q-learning runs, parameters and a clean stop."""
+get_policy during and after training, the hand-off to the policy node, the train and stop
+services, /diagnostics, Q-learning runs, parameters, failed runs and a clean stop."""
 from __future__ import annotations
 
 import json
 import math
+import re
 import threading
 
 import numpy as np
@@ -43,6 +44,7 @@ class Client(Node):
         super().__init__('trainer_client', **kwargs)
         self.get_policy = self.create_client(Trigger, 'get_policy')
         self.train = self.create_client(Trigger, 'train')
+        self.stop = self.create_client(Trigger, 'stop')
         self.lock = threading.Lock()
         self.diagnostics: list[dict[str, str]] = []
         self.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics, 100)
@@ -136,7 +138,7 @@ def test_diagnostics_report_the_state_and_progress_of_a_run(ros, tmp_path):
     done = client.last()
     assert {'steps', 'best_value', 'delta_star', 'steps_per_s', 'generation', 'budget',
             'delta', 'achieved', 'method', 'seed'} <= set(done)
-    row = trainer._history[-1]
+    row = trainer.history[-1]
     assert int(done['steps']) == row['steps'] >= BUDGET == int(done['budget'])
     assert float(done['best_value']) == row['best_value']
     assert float(done['delta_star']) == row['delta_star']
@@ -221,8 +223,8 @@ def test_invalid_parameters_are_refused_with_the_reason(ros, tmp_path):
 
 def test_an_unwritable_policy_file_fails_the_run_but_the_policy_is_still_served(ros, tmp_path):
     """When out cannot be written the run reports failed, naming it, and get_policy serves."""
-    (tmp_path / 'file').write_text('not a directory')
-    out = tmp_path / 'file' / 'policy.json'
+    out = tmp_path / 'file'
+    out.mkdir()                                    # a directory: os.replace cannot write it
     client = ros.start(Client)
     ros.start(TrainerNode, params={**SMALL, 'steps': BUDGET, 'out': str(out),
                                    'train_on_start': True})
@@ -231,3 +233,75 @@ def test_an_unwritable_policy_file_fails_the_run_but_the_policy_is_still_served(
     assert str(tmp_path / 'file') in last['message'] and last['level'] == 2
     served = ros.call(client.get_policy, Trigger.Request())
     assert served.success and json.loads(served.message)['meta']['steps'] >= BUDGET
+
+
+def test_stop_ends_the_run_after_its_round_saves_and_reports_stopped(ros, tmp_path):
+    """The stop service answers once the best policy, log and checkpoint are written, saying
+    where; /diagnostics reports stopped; the checkpoint resumes; stop with no run is refused."""
+    out = tmp_path / 'best.json'
+    client = ros.start(Client)
+    trainer = ros.start(TrainerNode, params={**SMALL, 'steps': 10**12, 'out': str(out),
+                                             'train_on_start': True})
+    ros.wait_for(lambda: len(trainer.history) >= 2, 'two generations')
+    response = ros.call(client.stop, Trigger.Request())
+    assert response.success, response.message
+    assert response.message.startswith('stopped after')
+    assert str(out) in response.message and str(tmp_path / 'best.ckpt') in response.message
+    ros.wait_for(state_is(client, 'stopped'), '/diagnostics to report stopped')
+    assert client.last()['checkpoint'] == str(tmp_path / 'best.ckpt')
+    saved = load_policy(out, 'acrobot')
+    assert saved.meta['steps'] == trainer.history[-1]['steps'] < 10**12
+    assert (tmp_path / 'best.log.csv').read_text().count('\n') == len(trainer.history) + 1
+    assert (tmp_path / 'best.ckpt' / 'checkpoint.npz').is_file()
+    refused = ros.call(client.stop, Trigger.Request())
+    assert not refused.success and 'no training run in progress' in refused.message
+    resumed = trainer.set_parameters([Parameter('resume', value=True),
+                                      Parameter('steps', value=saved.meta['steps'] + 1)])
+    assert all(r.successful for r in resumed)
+    assert ros.call(client.train, Trigger.Request()).success
+    ros.wait_for(state_is(client, 'done'), 'the resumed run to finish', timeout=60)
+    assert load_policy(out, 'acrobot').meta['steps'] > saved.meta['steps']
+
+
+def test_a_failed_run_is_reported_and_the_next_run_works(ros, tmp_path, capfd):
+    """A run that fails (a damaged checkpoint to resume) reports failed with one line, and a
+    good run on the same node then trains, reports and logs its progress through the ROS
+    logger (rclpy refuses a second severity from one call site: no crash, no fallback)."""
+    ck = tmp_path / 'ck'
+    ck.mkdir()
+    (ck / 'checkpoint.npz').write_bytes(b'PK\x03\x04 not a checkpoint')
+    client = ros.start(Client)
+    trainer = ros.start(TrainerNode, params={**SMALL, 'steps': BUDGET, 'resume': True,
+                                             'checkpoint': str(ck), 'log_period': 0.001,
+                                             'diagnostics_period': 0.2})
+    assert ros.call(client.train, Trigger.Request()).success
+    ros.wait_for(state_is(client, 'failed'), 'the run to fail')
+    failed = client.last()
+    assert 'unreadable checkpoint' in failed['message'] and failed['level'] == 2
+    assert '\n' not in failed['message']
+    assert trainer.set_parameters([Parameter('resume', value=False)])[0].successful
+    assert ros.call(client.train, Trigger.Request()).success
+    ros.wait_for(state_is(client, 'done'), 'the second run to finish', timeout=60)
+    states = client.states()
+    assert states.index('failed') < len(states) - 1 - states[::-1].index('training')
+    assert client.last()['level'] == 0 and int(client.last()['steps']) >= BUDGET
+    assert not trainer.training
+    err = capfd.readouterr().err
+    assert re.search(r'\[ERROR\] \[[\d.]+\] \[trainer_node\]: training failed: ', err), err
+    assert re.search(r'\[INFO\] \[[\d.]+\] \[trainer_node\]: steps ', err), err
+    assert 'Traceback' not in err
+
+
+def test_out_in_a_missing_folder_is_refused_before_training(ros, tmp_path):
+    """A run whose out (or checkpoint) folder does not exist is refused with the reason;
+    no folder is created."""
+    client = ros.start(Client)
+    trainer = ros.start(TrainerNode, params={**SMALL, 'steps': BUDGET,
+                                             'out': str(tmp_path / 'no' / 'p.json')})
+    refused = ros.call(client.train, Trigger.Request())
+    assert not refused.success and 'is not an existing folder' in refused.message
+    assert trainer.set_parameters([Parameter('out', value=str(tmp_path / 'p.json')),
+                                   Parameter('checkpoint', value=str(tmp_path / 'a' / 'b'))])
+    refused = ros.call(client.train, Trigger.Request())
+    assert not refused.success and 'checkpoint' in refused.message
+    assert not (tmp_path / 'no').exists() and not (tmp_path / 'a').exists()

@@ -5,17 +5,19 @@ Every ``setting`` field (``sapga_ros.optim.settings``) of ``TrainConfig``, ``Sap
 with its bounds as the descriptor's ``integer_range`` / ``floating_point_range`` (rclpy
 refuses values outside them) and its choices in ``additional_constraints``.  Written here
 are only the node's forms of three run fields: ``problem`` (read-only), ``delta`` (any
-number; < 0 or NaN: the problem's default) and ``checkpoint`` ('': none).  A change applies
-to the next run.
+number; < 0 or NaN: the problem's default) and ``checkpoint`` ('': ``<out without
+suffix>.ckpt`` beside ``out``; none without ``out``).  A change applies to the next run.
 """
 from __future__ import annotations
 
 import math
 from dataclasses import Field, dataclass
+from pathlib import Path
 from typing import Any, Callable
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 
+from sapga_ros.errors import ConfigError
 from sapga_ros.optim.qlearner import QlParams
 from sapga_ros.optim.sapga import SapgaParams
 from sapga_ros.optim.settings import Setting, build, described, kind_of, setting
@@ -39,7 +41,8 @@ class NodeSettings:
 PROBLEM = ('acrobot', 'msg_configs/<problem>.yaml (read-only)')
 OTHERS: dict[str, tuple[Any, str]] = {
     'delta': (-1.0, 'goal difficulty; < 0 or NaN: the problem\'s default'),
-    'checkpoint': ('', 'checkpoint directory; empty: none'),
+    'checkpoint': ('', 'checkpoint directory; empty: <out without suffix>.ckpt beside out '
+                   '(none without out)'),
 }
 SETTINGS: dict[str, tuple[Field, Setting]] = {
     f.name: (f, s) for cls in (TrainConfig, SapgaParams, QlParams, NodeSettings)
@@ -85,7 +88,16 @@ def check_setting(name: str, value: Any) -> str | None:
 
 
 def train_config(value: Callable[[str], Any], problem: str, delta: float) -> TrainConfig:
-    """The run parameters ``value(name)`` describe (ConfigError if inconsistent)."""
+    """The run parameters ``value(name)`` describe (ConfigError if inconsistent, or if
+    ``out`` or the checkpoint directory is not in an existing folder)."""
+    out = value('out')
+    checkpoint = value('checkpoint') or (str(Path(out).with_suffix('.ckpt')) if out else '')
+    if value('resume') and not checkpoint:
+        raise ConfigError('resume needs a checkpoint directory (parameter checkpoint, or out: '
+                          'the checkpoint beside it)')
+    for what, path in (('out', out), ('checkpoint', checkpoint)):
+        if path and not Path(path).parent.is_dir():
+            raise ConfigError(f'{what} {path}: {Path(path).parent} is not an existing folder')
     return build(TrainConfig, value, problem=problem, delta=delta,
-                 checkpoint=value('checkpoint') or None, params=build(SapgaParams, value),
+                 checkpoint=checkpoint or None, params=build(SapgaParams, value),
                  ql=build(QlParams, value))
