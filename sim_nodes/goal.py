@@ -15,7 +15,9 @@ from sim_nodes.models.common import TWO_PI
 @kernel
 def circular_diff(a: float, b: float) -> float:
     """|a - b|_c: the shortest way round the circle [rad], in [0, pi]."""
-    d = math.fabs(a - b) % TWO_PI
+    d = math.fabs(a - b)
+    if d >= TWO_PI:        # wrapped angles never get here: fmod would return d unchanged
+        d = d % TWO_PI
     return TWO_PI - d if d > math.pi else d
 
 
