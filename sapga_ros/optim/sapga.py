@@ -29,6 +29,15 @@ from sapga_ros.optim.settings import check, setting
 from sim_nodes.problem import Problem
 
 COUNT = 1_000_000                          # most policies, children or exemplars a setting asks
+VARIANTS = {                               # name -> what changes from the paper's algorithm
+    'paper': 'the paper\'s SAP-GA: the family member of best value survives (a parent '
+             'among equals)',
+    'child-ties': 'as paper, but among members of equal value a child survives (drift '
+                  'across plateaus of identical behaviour)',
+    'dstar': 'the member whose episode came nearest the goal (smallest delta*) survives, '
+             'value breaking ties; the run\'s result is chosen the same way',
+    'dstar-child': 'dstar, and among equal members a child survives',
+}
 
 
 @dataclass(frozen=True)
@@ -46,6 +55,9 @@ class SapgaParams:
     max_tries: int = 100                   # crossover attempts before a child is repaired
     style: str = setting('state-action', 'exemplar style of the policies evolved: ' + '; '.join(
         f'{s.name}: {s.summary}' for s in STYLES.values()), choices=tuple(STYLES))
+    variant: str = setting('paper', 'SAP-GA variant (issue 8; paper is the published '
+                           'algorithm): ' + '; '.join(f'{k}: {v}' for k, v in VARIANTS.items()),
+                           choices=tuple(VARIANTS))
 
     def __post_init__(self) -> None:
         check(self)
@@ -130,6 +142,7 @@ class SapGA(Optimizer):
                 == len(self._pending):
             raise RuntimeError('tell() needs the results of the last ask(), in order')
         st = self.stats
+        rank = self._rank
         for k, m in enumerate(self._pending):
             value = float(returns[k])
             m.value = value if math.isfinite(value) else -math.inf  # NaN ranks worst
@@ -140,11 +153,13 @@ class SapGA(Optimizer):
             st.steps += m.steps
             st.evaluations += 1
             st.delta_star = min(st.delta_star, m.delta_star)
-            if self.best is None or m.value > self.best.value:
+            st.best_value = max(st.best_value, m.value)
+            if self.best is None or rank(m) > rank(self.best):
                 self.best = m
-                st.best_value = m.value
         for i, j, members in self._families:
-            star = max(members, key=lambda m: m.value)            # pi*, first of equals
+            if self.params.variant in ('child-ties', 'dstar-child'):
+                members = members[2:] + members[:2]               # children first
+            star = max(members, key=rank)                         # pi*, first of equals
             clone, count = refresh(star.policy, star.used, self.rng, self.params.refresh_rate)
             st.refreshed += count
             twin = Individual(clone)
@@ -155,6 +170,12 @@ class SapGA(Optimizer):
             self.population[j] = twin
         st.generation += 1
         self._families = self._pending = None
+
+    def _rank(self, m: Individual):
+        """What selection maximises: the value (paper), or nearness to the goal first."""
+        if self.params.variant in ('dstar', 'dstar-child'):
+            return (-m.delta_star if not math.isnan(m.delta_star) else -math.inf, m.value)
+        return m.value
 
     @property
     def steps(self) -> int:
