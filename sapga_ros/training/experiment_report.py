@@ -55,7 +55,8 @@ def summarise(exp: Experiment, runs: list[dict], budget: int) -> dict:
             if key == 'delta_star_alt':
                 final['achieved_alt'] = int(sum(v <= exp.delta for v in values))
     return {'id': exp.id, 'problem': exp.problem, 'method': exp.method, 'delta': exp.delta,
-            'style': exp.style, 'paper': exp.paper, 'group': exp.group,
+            'style': exp.style, 'variant': exp.variant, 'paper': exp.paper,
+            'group': exp.group,
             'steps': budget, 'seeds': [r['seed'] for r in runs], 'grid': grid.tolist(),
             'best_value': stat(best), 'delta_star': stat(dstar),
             'achieved_fraction': achieved.mean(axis=0).tolist(), 'final': final,

@@ -17,6 +17,7 @@ from sim_nodes.problem import config_dir, load_problem
 
 MAX_SET_BYTES = 1 << 20
 METHODS = ('sapga', 'ql', 'cmaes')
+CMAES_POP = 100        # CMA-ES candidates per generation in experiments (batches use the engine)
 MAX_SEEDS = 10_000
 MAX_STEPS = 10 ** 12
 _NAME_RE = re.compile(r'^[a-z0-9][a-z0-9_-]*$')
@@ -34,6 +35,8 @@ class Experiment:
     style: str = 'state-action'            # exemplar style of a SAP-GA experiment
     paper: str = ''                        # what the paper reports for this row
     group: str = 'paper'                   # paper | ablation | peer (report sections)
+    variant: str = 'paper'                 # SAP-GA variant (optim/sapga.py VARIANTS)
+    seeds: int | None = None               # this row's seed count (None: the set's)
 
 
 def _count(value: Any, where: str, low: int, high: int) -> int:
@@ -59,7 +62,13 @@ def _experiment(e: Any, where: str) -> Experiment:
                      float(delta), str(e['method'])[:40],
                      _count(e['steps'], f'{where}.steps', 1, MAX_STEPS),
                      str(e.get('style', 'state-action'))[:40], str(e.get('paper', ''))[:300],
-                     str(e.get('group', 'paper'))[:40])
+                     str(e.get('group', 'paper'))[:40], str(e.get('variant', 'paper'))[:40],
+                     None if e.get('seeds') is None else
+                     _count(e['seeds'], f'{where}.seeds', 1, MAX_SEEDS))
+    from sapga_ros.optim.sapga import VARIANTS
+    if exp.variant not in VARIANTS:
+        raise ConfigError(f'{where}.variant: unknown variant {exp.variant!r} '
+                          f'(known: {", ".join(VARIANTS)})')
     load_problem(exp.problem)
     if exp.method not in METHODS:
         raise ConfigError(f'{where}.method: expected one of {", ".join(METHODS)}, '
@@ -141,12 +150,13 @@ def run_one(exp: Experiment, seed: int, steps: int) -> dict:
     if exp.method == 'cmaes':
         from sapga_ros.optim.cmaes import train_cmaes
         set_jobs(1)
-        policy, hist = train_cmaes(exp.problem, exp.delta, steps, seed)
+        policy, hist = train_cmaes(exp.problem, exp.delta, steps, seed, popsize=CMAES_POP)
     else:
         from sapga_ros.optim.sapga import SapgaParams
         from sapga_ros.training.loop import TrainConfig, train
         cfg = TrainConfig(problem=exp.problem, method=exp.method, delta=exp.delta,
-                          steps=steps, seed=seed, jobs=1, params=SapgaParams(style=exp.style))
+                          steps=steps, seed=seed, jobs=1,
+                          params=SapgaParams(style=exp.style, variant=exp.variant))
         result = train(cfg)
         policy, hist = result.policy, result.history
     last = hist[-1]

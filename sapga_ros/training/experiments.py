@@ -37,7 +37,8 @@ def run_path(out: Path, exp: Experiment, seed: int) -> Path:
 def run_key(name: str, exp: Experiment, seed: int, budget: int) -> dict:
     """What a run's result depends on (not the row's description): a stored run is reused
     only for the same key."""
-    settings = {k: v for k, v in asdict(exp).items() if k not in ('paper', 'group')}
+    settings = {k: v for k, v in asdict(exp).items()
+                if k not in ('paper', 'group', 'seeds')}
     return {'set': name, 'experiment': settings, 'seed': seed, 'steps': budget}
 
 
@@ -111,8 +112,10 @@ def run_experiments(name: str, out: str | os.PathLike, only: list[int] | None = 
     budgets = {e.id: max(1000, int(e.steps * scale)) for e in exps}
     runs: dict[tuple[int, int], dict] = {}
     pending = []
+    row_seeds = {e.id: e.seeds if e.seeds is not None and seeds is None else n_seeds
+                 for e in exps}
     for exp in exps:
-        for seed in range(n_seeds):
+        for seed in range(row_seeds[exp.id]):
             key = run_key(name, exp, seed, budgets[exp.id])
             run = _finished(run_path(out, exp, seed), key)
             if run is None:
@@ -144,7 +147,7 @@ def run_experiments(name: str, out: str | os.PathLike, only: list[int] | None = 
         'name': name, 'command': command, 'seeds': n_seeds, 'scale': scale,
         'backend': backend, 'wall_s': time.perf_counter() - started,
         'runs_run': len(runs) - reused, 'runs_reused': reused}))
-    return _summarise(exps, n_seeds, budgets, runs, out, log)
+    return _summarise(exps, row_seeds, budgets, runs, out, log)
 
 
 def _limit(out: Path, search: LimitSearch, scale: float, log) -> None:
@@ -216,13 +219,13 @@ def _execute_ray(jobs: list[tuple], workers: int, address: str | None):
             ray.shutdown()
 
 
-def _summarise(exps, n_seeds, budgets, runs, out: Path, log) -> list[dict]:
+def _summarise(exps, row_seeds, budgets, runs, out: Path, log) -> list[dict]:
     summaries, raw = [], {}
     for exp in exps:
-        exp_runs = [runs[exp.id, seed] for seed in range(n_seeds)]
+        exp_runs = [runs[exp.id, seed] for seed in range(row_seeds[exp.id])]
         s = summarise(exp, exp_runs, budgets[exp.id])
         f = s['final']
-        style = exp.style if exp.method == 'sapga' else ''
+        style = f'{exp.style} {exp.variant}' if exp.method == 'sapga' else ''
         log(f'#{exp.id} {exp.method} {style} on {exp.problem}, delta {exp.delta}, '
             f'{budgets[exp.id]:,d} steps: achieved '
             f"{f['achieved']}/{f['runs']}, best value {f['best_value_mean']:.1f} +- "

@@ -47,6 +47,8 @@ def _row(s: dict) -> str:
     method = s['method'].upper() if s['method'] != 'sapga' else 'SAP-GA'
     if s['method'] == 'sapga' and s.get('style', 'state-action') != 'state-action':
         method += f" ({s['style']})"
+    if s['method'] == 'sapga' and s.get('variant', 'paper') != 'paper':
+        method += f" [{s['variant']}]"
     alt = ''
     if 'delta_star_alt_mean' in f:
         alt = (f"{_pm(f['delta_star_alt_mean'], f['delta_star_alt_std'], 4)}, achieved "
