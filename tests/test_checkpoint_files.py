@@ -8,6 +8,7 @@ import io
 import json
 import os
 import re
+import stat
 import struct
 import subprocess
 import sys
@@ -21,6 +22,8 @@ import pytest
 
 from sapga_ros.cli import main as cli
 from sapga_ros.errors import CheckpointError
+from sapga_ros.io.atomic import write_atomic
+from sapga_ros.io.bounded import NotRegularFile
 from sapga_ros.io.checkpoint import FILENAME, load_checkpoint
 from sapga_ros.optim.qlearner import QlParams
 from sapga_ros.optim.sapga import SapgaParams
@@ -259,6 +262,7 @@ def test_resume_of_a_q_learning_checkpoint_keeps_its_chunks(tmp_path, capsys):
     (['--out', 'FILE/x.json'], 'is not a folder'),
     (['--checkpoint', 'FILE'], 'exists and is not a directory'),
     (['--out', '.'], 'is a directory'),
+    (['--out', 'FIFO'], 'not a regular file'),
     (['--resume'], 'no checkpoint to resume from'),
     (['--init', 'missing.json'], 'missing.json'),
     (['--init', 'FILE'], 'FILE'),
@@ -271,12 +275,27 @@ def test_user_errors_of_train_are_one_line_exit_2_and_create_nothing(
     folder (only the default runs/ of a default --out would be)."""
     monkeypatch.chdir(tmp_path)
     (tmp_path / 'FILE').write_text('not a folder')
-    args = [a.replace('FILE', str(tmp_path / 'FILE')) for a in args]
+    os.mkfifo(tmp_path / 'FIFO')
+    args = [a.replace('FILE', str(tmp_path / 'FILE')).replace('FIFO', str(tmp_path / 'FIFO'))
+            for a in args]
     code = cli.main(['train', '--problem', 'acrobot', '--steps', '1000', '--quiet', *args])
     err = capsys.readouterr().err
     assert code == 2 and err.count('\n') == 1 and needle in err, err
     assert not Path('/nonexistent').exists()
-    assert sorted(p.name for p in tmp_path.iterdir()) in (['FILE'], ['FILE', 'runs'])
+    assert sorted(p.name for p in tmp_path.iterdir()) in (['FIFO', 'FILE'],
+                                                          ['FIFO', 'FILE', 'runs'])
+
+
+def test_an_atomic_write_never_replaces_a_fifo_or_a_directory(tmp_path):
+    """write_atomic refuses a path that is a FIFO or a directory (a device such as /dev/null
+    alike) and leaves it as it was."""
+    os.mkfifo(tmp_path / 'fifo')
+    (tmp_path / 'dir').mkdir()
+    for name, kind in [('fifo', 'a FIFO'), ('dir', 'a directory')]:
+        with pytest.raises(NotRegularFile, match=f'{kind}, not a regular file'):
+            write_atomic(tmp_path / name, 'text')
+    assert stat.S_ISFIFO(os.stat(tmp_path / 'fifo').st_mode)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['dir', 'fifo']
 
 
 def test_a_default_run_checkpoints_beside_its_policy(tmp_path, capsys, monkeypatch):

@@ -93,9 +93,12 @@ def add_settings(parser: argparse.ArgumentParser, cls: type) -> None:
 
 def check_output_file(path: Path, option: str) -> None:
     """Refuse, before any work is done, an output file that cannot be written: a directory,
-    a file in a folder that does not exist (none is created), an unwritable one."""
+    a device, FIFO or socket, a file in a folder that does not exist (none is created), an
+    unwritable one."""
     if path.is_dir():
         raise SapgaError(f'{option} {path}: is a directory')
+    if path.exists() and not path.is_file():
+        raise SapgaError(f'{option} {path}: not a regular file (a device, FIFO or socket)')
     _check_folder(path, option)
     if path.exists() and not os.access(path, os.W_OK):
         raise SapgaError(f'{option} {path}: not writable')

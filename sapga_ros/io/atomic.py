@@ -1,10 +1,16 @@
-"""Atomic file writes: a crash or a kill never leaves half a file where a good one was."""
+"""Atomic file writes: a crash or a kill never leaves half a file where a good one was, and a
+device, FIFO or socket at the path is never replaced by a file (``/dev/null`` as an output
+stays a device)."""
 from __future__ import annotations
 
+import errno
 import os
+import stat
 import tempfile
 from pathlib import Path
 from typing import BinaryIO, Callable
+
+from sapga_ros.io.bounded import NotRegularFile
 
 
 def process_umask() -> int:
@@ -29,8 +35,18 @@ def process_umask() -> int:
 def write_atomic(path: str | os.PathLike, content: str | bytes | Callable[[BinaryIO], None]
                  ) -> Path:
     """Write ``content`` (text, bytes, or a function writing to a binary file) to ``path``
-    through a temporary file in the same folder, fsync it, then rename it into place."""
+    through a temporary file in the same folder, fsync it, then rename it into place.
+    ``NotRegularFile`` if something other than a regular file (or a link to one) is there."""
     path = Path(path)
+    try:
+        mode = os.stat(path).st_mode
+    except (FileNotFoundError, NotADirectoryError):
+        mode = stat.S_IFREG
+    if not stat.S_ISREG(mode):
+        kind = 'a directory' if stat.S_ISDIR(mode) else 'a FIFO' if stat.S_ISFIFO(mode) \
+            else 'a device or socket'
+        raise NotRegularFile(errno.EISDIR if stat.S_ISDIR(mode) else errno.EINVAL,
+                             f'{kind}, not a regular file', str(path))
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f'.{path.name}.', dir=path.parent)
     try:
