@@ -68,3 +68,18 @@ def test_the_alternative_goal_reading_is_measured_beside_the_printed_one():
         want = min(delta_of(alt, s) for s in ep.states)
         assert batch.delta_star_alt[k] == want <= batch.delta_star[k]
     assert Evaluator(load_problem('acrobot')).evaluate(policies[:0]).delta_star_alt is None
+
+
+def test_training_logs_both_goal_readings_on_the_pdip():
+    """Every log row of a PDIP run (SAP-GA and Q-learning) carries delta* under the
+    alternative reading, never above the printed box's and never rising; the acrobot's
+    rows carry none."""
+    from sapga_ros.training.loop import TrainConfig, train
+    for problem, method in (('pdip', 'sapga'), ('pdip_single', 'ql')):
+        rows = train(TrainConfig(problem=problem, method=method, steps=300_000, seed=1,
+                                 jobs=1)).history
+        alt = [r['delta_star_alt'] for r in rows]
+        assert all(a <= r['delta_star'] for a, r in zip(alt, rows))
+        assert alt == sorted(alt, reverse=True)
+    rows = train(TrainConfig(problem='acrobot', steps=100_000, seed=1, jobs=1)).history
+    assert 'delta_star_alt' not in rows[-1]

@@ -17,6 +17,7 @@ from __future__ import annotations
 import csv
 import io
 import json
+import math
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -120,12 +121,15 @@ def _save(config: TrainConfig, problem: Problem, delta: float, opt: Optimizer,
                      json_roundtrip(settings), opt, history)
 
 
-def _evaluate(evaluator: Evaluator, batch: list) -> tuple:
-    """(returns, delta_star, steps, reached, used) of a batch of policies."""
+def _evaluate(evaluator: Evaluator, batch: list) -> tuple[tuple, float]:
+    """((returns, delta_star, steps, reached, used), min delta* under the alternative goal
+    reading, inf without one) of a batch of policies."""
     if not batch:
-        return np.empty(0), np.empty(0), np.empty(0, np.int64), np.empty(0, np.bool_), []
+        return (np.empty(0), np.empty(0), np.empty(0, np.int64), np.empty(0, np.bool_),
+                []), math.inf
     r = evaluator.evaluate(batch)
-    return r.returns, r.delta_star, r.steps, r.reached, r.used
+    alt = math.inf if r.delta_star_alt is None else float(np.min(r.delta_star_alt))
+    return (r.returns, r.delta_star, r.steps, r.reached, r.used), alt
 
 
 def train(config: TrainConfig, initial: list[ExemplarPolicy] = (),
@@ -148,15 +152,21 @@ def train(config: TrainConfig, initial: list[ExemplarPolicy] = (),
     opt, history = _start(config, problem, delta, list(initial))
     start = last_save = time.perf_counter()
     steps_at_start = opt.steps
+    alt_star = min([math.inf] + [r['delta_star_alt'] for r in history[-1:]
+                                 if r.get('delta_star_alt') is not None])
     while not (reasons := opt.stop(config.steps)):
         if should_stop and should_stop():
             reasons = {'should_stop': True}
             break
         best_before = opt.best
-        opt.tell(*_evaluate(evaluator, opt.ask()))
+        results, alt = _evaluate(evaluator, opt.ask())
+        opt.tell(*results)
+        alt_star = min(alt_star, alt)
         if on_best and opt.best is not best_before:
             on_best(_best_policy(config, opt, delta, jobs))
         row = opt.counters()
+        if problem.goal_alt_scale is not None and 'delta_star_alt' not in row:
+            row['delta_star_alt'] = alt_star   # the alternative goal reading, same runs
         now = time.perf_counter()
         row.update(achieved=row['delta_star'] <= delta,
                    steps_per_s=(opt.steps - steps_at_start) / max(now - start, 1e-9))
