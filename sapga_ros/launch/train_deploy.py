@@ -94,7 +94,7 @@ def run_train_deploy(args: argparse.Namespace, sup: Supervisor) -> TrainDeployRe
                 status = node.trainer
                 if status and status.get('state') == 'failed':
                     raise LaunchError(f'trainer: {status.get("message")}')
-                return status if status and status.get('state') == 'done' else None
+                return status if status and status.get('state') in ('done', 'stopped') else None
 
             trainer = sup.wait(trained, timeout=TRAIN_TIMEOUT_S, what='the training run')
             sup.say(f'trainer: {trainer["message"]}')
