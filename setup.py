@@ -19,6 +19,7 @@ the package is imported).
 """
 import glob
 import os
+import re
 import runpy
 
 from setuptools import find_packages, setup
@@ -46,6 +47,12 @@ def model_simulators():
     registry = runpy.run_path(os.path.join(HERE, 'sim_nodes', 'models', 'registry.py'))
     names = (registry['sim_executable'](model) for model in registry['model_names']())
     return {name: f'sim_nodes.ros.sim_node:mains.{name}' for name in names}
+
+
+def package_version():
+    """package.xml's <version>: the one source of the version (sapga_ros.__version__)."""
+    with open(os.path.join(HERE, 'package.xml'), encoding='utf-8') as f:
+        return re.search(r'<version>\s*([^<\s]+)\s*</version>', f.read()).group(1)
 
 
 EXECUTABLES = {**NODES, **model_simulators()}
@@ -119,11 +126,13 @@ data_files = [
     # problems, node parameters, experiments, the Foxglove layout (foxglove/sapga_ros.json)
     *tree_data_files('msg_configs', 'share/' + PACKAGE + '/msg_configs',
                      ('*.yaml', '*.yml', '*.json')),
+    # the nodes' parameter files also where ROS users look: share/sapga_ros/params/<exe>.yaml
+    *tree_data_files(os.path.join('msg_configs', 'params'), 'share/' + PACKAGE + '/params'),
 ]
 
 setup(
     name=PACKAGE,
-    version='0.1.0',
+    version=package_version(),
     packages=find_packages(include=['sapga_ros', 'sapga_ros.*', 'sim_nodes', 'sim_nodes.*']),
     data_files=data_files,
     cmdclass=cmdclass,

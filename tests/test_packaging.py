@@ -4,6 +4,7 @@
 ament prefix.  Three installs must provide it: the editable install in the project venv
 (`make venv`), a plain ``pip install`` (a wheel: console scripts in ``<prefix>/bin`` and
 launchers in ``lib/sapga_ros``) and ``colcon build`` (console scripts in ``lib/sapga_ros``).
+Each also installs the node parameter files under ``share/sapga_ros/params/``.
 """
 import ast
 import os
@@ -48,6 +49,22 @@ def _config_files() -> list[Path]:
                   if p.suffix in ('.yaml', '.yml', '.json') and p.is_file())
 
 
+def _params_files() -> list[str]:
+    """The node parameter files, installed under share/sapga_ros/params/ too."""
+    return sorted(p.name for p in (REPO / 'msg_configs' / 'params').glob('*.yaml'))
+
+
+def _assert_params_installed(share: Path) -> None:
+    """Every node parameter file is in ``share``/params, where ROS users look."""
+    missing = [name for name in _params_files() if not (share / 'params' / name).is_file()]
+    assert not missing, f'not installed in {share}/params: {missing}'
+
+
+def _package_xml_version() -> str:
+    text = (REPO / 'package.xml').read_text(encoding='utf-8')
+    return text.split('<version>')[1].split('</version>')[0].strip()
+
+
 def _is_executable_file(path: Path) -> bool:
     return path.is_file() and os.access(path, os.X_OK)
 
@@ -71,10 +88,10 @@ def _assert_ok(proc: subprocess.CompletedProcess, what: str) -> None:
 
 def _assert_simulators_start(lib: Path, env: dict[str, str]) -> None:
     """Every simulator executable in ``lib`` reaches its node (``sim_nodes.ros.sim_node:
-    mains.<model>_sim`` resolves), which refuses an unknown problem with exit 1."""
+    mains.<model>_sim`` resolves), which refuses an unknown problem with exit 2."""
     for exe in (e for e in EXECUTABLES if e.endswith('_sim') or e == 'sim_node'):
         proc = _run([lib / exe, '--ros-args', '-p', 'problem:=no_such_problem'], env=env)
-        assert proc.returncode == 1 and "unknown problem 'no_such_problem'" in proc.stderr, (
+        assert proc.returncode == 2 and "unknown problem 'no_such_problem'" in proc.stderr, (
             f'{exe}: exit {proc.returncode}\n{proc.stderr[-2000:]}')
 
 
@@ -159,6 +176,7 @@ def test_venv_install_has_package_share_and_every_config(venv_prefix):
     missing = [str(rel) for rel in _config_files()
                if not (share / 'msg_configs' / rel).is_file()]
     assert not missing, f'not installed in {share}/msg_configs: {missing} (run `make venv`)'
+    _assert_params_installed(share)
 
 
 def test_venv_sapga_help_runs_through_ros2_run_path(venv_prefix):
@@ -189,11 +207,15 @@ def test_pip_install_puts_launchers_and_share_files_into_prefix(tmp_path):
     assert (prefix / 'share' / PACKAGE / 'msg_configs' / 'acrobot.yaml').is_file()
     for rel in _config_files():
         assert (prefix / 'share' / PACKAGE / 'msg_configs' / rel).is_file(), str(rel)
+    _assert_params_installed(prefix / 'share' / PACKAGE)
 
     # the launcher runs this prefix's console script, which imports this prefix's package
     env = _env(PYTHONPATH=str(_site_packages(prefix)), AMENT_PREFIX_PATH=str(prefix))
     proc = _run([prefix / 'lib' / PACKAGE / 'sapga', '--help'], env=env)
     _assert_ok(proc, 'pip-installed lib/sapga_ros/sapga --help')
+    proc = _run([prefix / 'lib' / PACKAGE / 'sapga', '--version'], env=env)
+    _assert_ok(proc, 'pip-installed sapga --version')
+    assert proc.stdout.split() == ['sapga', _package_xml_version()]   # from the distribution
     _assert_simulators_start(prefix / 'lib' / PACKAGE, env)
 
 
@@ -222,6 +244,7 @@ def test_colcon_build_puts_console_scripts_where_ros2_run_looks(tmp_path, mode):
     assert (pkg_prefix / 'share/ament_index/resource_index/packages' / PACKAGE).exists()
     for rel in _config_files():
         assert (pkg_prefix / 'share' / PACKAGE / 'msg_configs' / rel).exists(), str(rel)
+    _assert_params_installed(pkg_prefix / 'share' / PACKAGE)
 
     proc = _run([pkg_prefix / 'lib' / PACKAGE / 'sapga', '--help'], env=_hook_env(pkg_prefix))
     _assert_ok(proc, f'colcon-built ({mode}) lib/sapga_ros/sapga --help')

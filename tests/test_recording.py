@@ -545,11 +545,11 @@ def test_sigterm_and_ctrl_c_finish_the_bag(context, ros_env, tmp_path, sig):
     ('split:=hour', 'split'),
     ('bag:=../escape', 'bag'),
 ])
-def test_bad_parameters_give_one_line_and_exit_1(ros_env, tmp_path, param, what):
-    """A wrongly typed or out-of-range parameter: one line naming it, exit 1, no traceback."""
+def test_bad_parameters_give_one_line_and_exit_2(ros_env, tmp_path, param, what):
+    """A wrongly typed or out-of-range parameter: one line naming it, exit 2, no traceback."""
     done = subprocess.run([str(VENV_BIN / 'recorder_node'), '--ros-args', '-p',
                            f'output_dir:={tmp_path}', '-p', param], env=ros_env,
                           capture_output=True, text=True, timeout=60)
     lines = [line for line in done.stderr.splitlines() if line.strip()]
-    assert done.returncode == 1 and 'Traceback' not in done.stderr, done.stderr
+    assert done.returncode == 2 and 'Traceback' not in done.stderr, done.stderr
     assert len(lines) == 1 and lines[0].startswith('recorder_node: error: ') and what in lines[0]

@@ -210,6 +210,7 @@ def test_a_sim_waiting_for_a_missing_recorder_stops_with_one_line(tmp_path):
                            'mode:=lockstep', '-p', 'wait_for_recorder:=recorder', '-p',
                            'recorder_timeout:=2.0'], env=env, capture_output=True, text=True,
                           timeout=60)
-    errors = [line for line in done.stderr.splitlines() if line.startswith('error: ')]
+    errors = [line for line in done.stderr.splitlines()
+              if line.startswith('acrobot_sim: error: ')]
     assert done.returncode == 1 and 'Traceback' not in done.stderr, done.stderr
     assert len(errors) == 1 and "recorder 'recorder' not ready after 2 s" in errors[0]

@@ -12,7 +12,11 @@
                      [--backend local|ray] [--address ADDR]
     sapga experiment report DIR
     sapga limit --problem P [--alternative-goal] [--width W] [--json] [--out FILE]
-    sapga launch NAME ...
+    sapga launch NAME ... [--namespace NS] [--remap FROM:=TO ...] [--ros-args ...]
+    sapga --version
+
+``sapga`` finds the ament prefix it is installed in, so ``AMENT_PREFIX_PATH`` need not be
+set by hand (``sapga_ros.launch.prefix``).
 
 User errors (bad files, unknown problems, invalid numbers) print one line naming what is
 wrong and exit with status 2; no traceback.
@@ -31,8 +35,10 @@ from sapga_ros.cli.experiment import (add_experiment_arguments, add_limit_argume
 from sapga_ros.cli.recordings import (add_bag_arguments, add_inspect_arguments, cmd_bag,
                                       cmd_inspect)
 from sapga_ros.cli.train import add_train_arguments, cmd_train
+from sapga_ros import package_version
 from sapga_ros.errors import SapgaError
 from sapga_ros.exemplars.styles import STYLES
+from sapga_ros.launch.prefix import ensure_ament_prefix
 
 EXIT_USAGE = 2
 
@@ -40,6 +46,7 @@ EXIT_USAGE = 2
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog='sapga', description='Exemplar-based policy search (SAP-GA) for pendulums.')
+    parser.add_argument('--version', action='version', version=f'%(prog)s {package_version()}')
     sub = parser.add_subparsers(dest='command', required=True, metavar='COMMAND')
 
     add_train_arguments(sub.add_parser(
@@ -79,10 +86,9 @@ def build_parser() -> argparse.ArgumentParser:
     add_limit_arguments(sub.add_parser(
         'limit', help='the smallest delta any action sequence reaches (open-loop search)'))
 
-    la = sub.add_parser('launch', help='start a group of nodes (swingup, train_deploy)',
-                        add_help=False)
-    la.add_argument('name', nargs='?', help='swingup or train_deploy')
-    la.add_argument('args', nargs=argparse.REMAINDER)
+    # `sapga launch ...` goes to the launch itself (main); listed here for `sapga --help`
+    sub.add_parser('launch', help='start a group of nodes (swingup, train_deploy; sapga '
+                   'launch --help)', add_help=False)
     return parser
 
 
@@ -177,17 +183,22 @@ def _bench_styles(args) -> int:
     return 0
 
 
-def cmd_launch(args) -> int:
+def cmd_launch(argv: list[str]) -> int:
+    """``sapga launch NAME args...``: the launch parses its own arguments (and --help)."""
     from sapga_ros.launch import run_launch
-    return run_launch(args.name or '--help', args.args)
+    return run_launch(argv[0] if argv else '', argv[1:])
 
 
 COMMANDS = {'train': cmd_train, 'eval': cmd_eval, 'exemplars': cmd_exemplars,
-            'bench': cmd_bench, 'inspect': cmd_inspect, 'bag': cmd_bag, 'launch': cmd_launch,
+            'bench': cmd_bench, 'inspect': cmd_inspect, 'bag': cmd_bag,
             'experiment': cmd_experiment, 'limit': cmd_limit}
 
 
 def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    ensure_ament_prefix()
+    if argv[:1] == ['launch']:
+        return cmd_launch(argv[1:])
     args = build_parser().parse_args(argv)
     try:
         return COMMANDS[args.command](args)

@@ -7,6 +7,9 @@
   service, the simulator runs the episode in lockstep, the recorder writes MCAP, and the
   ROS episode is compared with the offline evaluation of the served policy.
 
+Every launch takes ``--namespace NS``, ``--remap FROM:=TO`` and a ``--ros-args ...`` tail for
+all of its nodes (``ros_args.py``), and works without ``AMENT_PREFIX_PATH`` set (``prefix.py``).
+
 ``Supervisor`` is the reusable part: it starts nodes as child processes (executables found
 where ``ros2 run`` looks: ``<prefix>/lib/sapga_ros/<exe>``), prefixes every output line with
 the child's name, waits for a condition while watching the children, and stops them
@@ -33,6 +36,8 @@ from typing import Any, Callable, Iterator, Sequence, TextIO
 import yaml
 
 from sapga_ros.errors import SapgaError
+from sapga_ros.launch.prefix import ensure_ament_prefix
+from sapga_ros.launch.ros_args import split_ros_args
 
 PACKAGE = 'sapga_ros'
 LAUNCHES = {'swingup': 'sapga_ros.launch.swingup',
@@ -40,6 +45,20 @@ LAUNCHES = {'swingup': 'sapga_ros.launch.swingup',
 STOP_TIMEOUT_S = 10.0   # [s] after SIGINT before SIGTERM, and after SIGTERM before SIGKILL
 POLL_S = 0.05           # [s] how often waits look at the children and the condition
 _PR_SET_PDEATHSIG = 1   # prctl option: signal this process when its parent dies
+
+
+USAGE = """usage: sapga launch NAME [options] [--namespace NS] [--remap FROM:=TO ...]
+                          [--ros-args ARGS...]
+
+Start a group of nodes as child processes, wait for them and stop them cleanly.
+
+launches:
+  swingup       simulator + policy node (a policy file) + recorder for N episodes
+  train_deploy  trainer node evolves a policy, the policy node loads it, one recorded episode
+
+sapga launch NAME --help lists the options of a launch.  Every launch passes --namespace,
+--remap and the --ros-args tail to all of its nodes.  Exit status: 0 done; 1 a node failed
+or the result is wrong; 2 bad arguments; 128 + signal when interrupted."""
 
 
 class LaunchError(SapgaError):
@@ -83,14 +102,14 @@ def find_executable(name: str, package: str = PACKAGE) -> Path:
             return path
     raise LaunchError(f'executable {name!r} of {package} not found (looked in '
                       f'{", ".join(str(c.parent) for c in candidates)}); is {package} '
-                      'installed and AMENT_PREFIX_PATH set?')
+                      'installed?')
 
 
 def node_env(extra: dict[str, str] | None = None) -> dict[str, str]:
-    """The environment of a child node: ours, unbuffered Python, the ament prefix if known."""
+    """The environment of a child node: ours, unbuffered Python, this install's ament
+    prefix in ``AMENT_PREFIX_PATH`` (``prefix.py``)."""
     env = dict(os.environ, PYTHONUNBUFFERED='1')
-    if 'AMENT_PREFIX_PATH' not in env and (Path(sys.prefix) / 'share' / 'ament_index').is_dir():
-        env['AMENT_PREFIX_PATH'] = sys.prefix
+    ensure_ament_prefix(env)
     if sys.stdout.isatty():
         env.setdefault('RCUTILS_COLORIZED_OUTPUT', '1')
     env.update(extra or {})
@@ -282,9 +301,12 @@ def run_launch(name: str, argv: Sequence[str]) -> int:
     2: bad arguments; 128 + signal number: interrupted (130 for Ctrl-C).
     """
     if name in ('-h', '--help'):
-        print(f'usage: sapga launch NAME [args...]\nlaunches: {", ".join(LAUNCHES)} '
-              '(sapga launch NAME --help for its arguments)')
+        print(USAGE)
         return 0
+    if not name:
+        print(USAGE.split('\n\n')[0], file=sys.stderr)
+        print('sapga launch: error: a launch NAME is required', file=sys.stderr)
+        return 2
     if name not in LAUNCHES:
         print(f'sapga launch: error: unknown launch {name!r} (choose from '
               f'{", ".join(LAUNCHES)})', file=sys.stderr)
@@ -300,7 +322,9 @@ def launch_main(argv: Sequence[str] | None, parser: Any,
 
     Exit codes as ``run_launch`` documents them.
     """
-    args = parser.parse_args(argv)
+    own, ros_args = split_ros_args(argv if argv is not None else sys.argv[1:])
+    args = parser.parse_args(own)
+    args.ros_args = ros_args
     sup = Supervisor()
     try:
         with sup, sup.handle_signals():

@@ -3,6 +3,7 @@ service, run the episode in lockstep, record it, and compare with the offline ev
 
     sapga launch train_deploy --out DIR [--problem acrobot] [--steps N] [--seed S]
                               [--delta D] [--jobs J]
+                              [--namespace NS] [--remap FROM:=TO ...] [--ros-args ARGS...]
 
 1. The trainer node (``train_on_start``; policy ``DIR/policy.json``, checkpoints in
    ``DIR/checkpoint``), the recorder and the policy node (no policy) start; the trainer
@@ -26,6 +27,7 @@ from pathlib import Path
 from typing import Sequence
 
 from sapga_ros.launch import LaunchError, Supervisor, launch_main
+from sapga_ros.launch.ros_args import RosOptions, add_ros_arguments
 from sapga_ros.launch.swingup import (DeployStack, LaunchRos, StackOptions, episode_lines,
                                       event_summary, finite_number, offline_episode,
                                       positive_int, same_episode)
@@ -63,6 +65,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="goal difficulty (default: the problem's)")
     p.add_argument('--jobs', type=int, default=0, metavar='J',
                    help='evaluation threads of the trainer (default 0: every core)')
+    add_ros_arguments(p)
     return p
 
 
@@ -78,7 +81,7 @@ def run_train_deploy(args: argparse.Namespace, sup: Supervisor) -> TrainDeployRe
     opts = StackOptions(problem, out, delta, episodes=1, mode='lockstep')
     sup.say(f'{problem.name}: training {args.steps:,d} steps (seed {args.seed}, delta '
             f'{delta}) in the trainer node, then one lockstep episode recorded to {out}')
-    ros = LaunchRos(problem)
+    ros = LaunchRos(problem, RosOptions.of(args))
     try:
         with tempfile.TemporaryDirectory(prefix='sapga-launch-') as tmp:
             stack = DeployStack(sup, ros, opts, Path(tmp))

@@ -11,34 +11,29 @@ Each distinct state stamp is answered once, so the lockstep sim's re-publishes a
 A via-point policy starts its list again whenever the state is the problem's initial state
 (every episode starts there).
 
-Parameters:
-
-================  ========  ============  ================================================
-name              type      default       meaning
-================  ========  ============  ================================================
-problem           string    acrobot       msg_configs/<problem>.yaml (read-only)
-policy_file       string    ''            a policy JSON file (SPEC 3.3), loaded at start;
-                                          setting it loads that file or is refused
-trainer_service   string    get_policy    the trainer's std_srvs/Trigger (read-only)
-load_timeout      double    5.0           [s] wait for the trainer's answer at most
-markers           bool      true          publish the exemplar ghost on ``markers``
-qos_profile       string    reliable      ``reliable`` (the problem's ``ros.qos``) |
-                                          ``sensor_data`` (best effort; read-only)
-================  ========  ============  ================================================
+Parameters (``policy_params.py``; ``policy_node --help`` prints them with their ranges):
+``problem``, ``policy_file``, ``trainer_service``, ``load_timeout``, ``markers``,
+``qos_profile``.
 
 Service ``load_policy`` (std_srvs/Trigger) fetches the policy from ``trainer_service``.  A
 policy that fails validation is refused with the reason and the old one is kept; a good one
 replaces the old one atomically (one reference assignment of an immutable
-``PreparedPolicy``).
+``PreparedPolicy``).  Parsing and packing happen in a worker thread (``policy_loader.py``), so
+states are answered with the old policy meanwhile: always for ``load_policy`` (it answers
+once the policy is in), and for a ``policy_file`` larger than ``SYNC_BYTES``.  A smaller file
+is loaded at once, so setting ``policy_file`` is refused with the reason; a larger one is
+accepted at once, swapped in when ready, and if it fails, the error is logged and
+``policy_file`` goes back to the file of the policy in use.  States that arrive faster than
+they are answered are dropped by the subscription's queue: counted in ``dropped.count``
+with a throttled warning (``sim_nodes/ros/dropped.py``).
 """
 from __future__ import annotations
 
-import time
-from dataclasses import dataclass
+import os
 from typing import Any
 
 import numpy as np
-from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -48,42 +43,33 @@ from std_msgs.msg import Int32
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
-from sapga_ros.errors import ConfigError, SapgaError
-from sim_nodes.ros.commands import StampedCommand
-from sim_nodes.ros.common import (QOS_PROFILES, QUIET_PUBLISHER, THROTTLE_S, JointStateLayout,
-                                  MessageError, run_node, stamp_ns, steady_clock, topic_names,
-                                  topic_qos)
-from sim_nodes.ros.markers import PendulumMarkers
-from sapga_ros.evaluation.state_selector import StateSelector
-from sapga_ros.exemplars.policy import ExemplarPolicy, load_policy, policy_from_json
+from sapga_ros.errors import PolicyFileError, SapgaError
+from sapga_ros.exemplars.policy import MAX_POLICY_BYTES, load_policy, policy_from_json
+from sapga_ros.io.bounded import open_regular
+from sapga_ros.nodes.policy_loader import LoadResult, PolicyLoader, PreparedPolicy, fetch_text
+from sapga_ros.nodes.policy_params import PARAMETERS, check_setting, help_rows
 from sim_nodes.problem import Problem, load_problem
+from sim_nodes.ros.commands import StampedCommand
+from sim_nodes.ros.common import (QUIET_PUBLISHER, THROTTLE_S, JointStateLayout, MessageError,
+                                  run_node, stamp_ns, topic_names, topic_qos)
+from sim_nodes.ros.dropped import DropCounter
+from sim_nodes.ros.markers import PendulumMarkers
+from sim_nodes.ros.params import declare
 
-POLL_S = 0.02  # [s] how often a pending load checks for the service and its deadline
-
-
-@dataclass(frozen=True)
-class PreparedPolicy:
-    """A validated policy in the selector's layout; never modified once made."""
-
-    policy: ExemplarPolicy
-    selector: StateSelector  # packed as Evaluator.pack packs it (its scratch changes)
-    source: str             # where it came from (file path or service name)
-
-    @classmethod
-    def of(cls, policy: ExemplarPolicy, source: str) -> PreparedPolicy:
-        return cls(policy, StateSelector(policy), source)
-
-    def __len__(self) -> int:
-        return len(self.policy)
+SYNC_BYTES = 256 * 1024  # [bytes] policy files up to this size load at once (~35 ms)
 
 
-def check_setting(name: str, value: Any) -> str | None:
-    """Why ``value`` is not acceptable for parameter ``name``, or None (files: see below)."""
-    if name == 'load_timeout' and not (np.isfinite(value) and value > 0):
-        return f'load_timeout: expected a finite number of seconds > 0, got {value}'
-    if name == 'qos_profile' and value not in QOS_PROFILES:
-        return f'qos_profile: expected one of {", ".join(QOS_PROFILES)}, got {value!r}'
-    return None
+def policy_file_size(path: str) -> int:
+    """The size of policy file ``path``, checked as ``load_policy`` checks it, unread."""
+    try:
+        with open_regular(path) as f:
+            size = os.fstat(f.fileno()).st_size
+    except OSError as exc:
+        raise PolicyFileError(f'{path}: cannot read ({exc.strerror or exc})') from exc
+    if size > MAX_POLICY_BYTES:
+        raise PolicyFileError(f'{path}: larger than the {MAX_POLICY_BYTES // (1024 * 1024)} '
+                              'MB limit')
+    return size
 
 
 class PolicyNode(Node):
@@ -91,18 +77,12 @@ class PolicyNode(Node):
 
     def __init__(self, node_name: str = 'policy_node', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
-        ro = ParameterDescriptor(read_only=True)
-        name = self.declare_parameter('problem', 'acrobot', ro).value
-        self.problem: Problem = load_problem(name)
-        policy_file = self.declare_parameter('policy_file', '').value
-        service = self.declare_parameter('trainer_service', 'get_policy', ro).value
-        self.load_timeout = self.declare_parameter('load_timeout', 5.0).value
-        self.markers = self.declare_parameter('markers', True).value
-        self.qos_profile = self.declare_parameter('qos_profile', 'reliable', ro).value
-        for key in ('load_timeout', 'qos_profile'):
-            reason = check_setting(key, getattr(self, key))
-            if reason:
-                raise ConfigError(f'{self.get_name()}: parameter {reason}')
+        values = declare(self, PARAMETERS)
+        self.problem: Problem = load_problem(values['problem'])
+        policy_file, service = values['policy_file'], values['trainer_service']
+        self.load_timeout = values['load_timeout']
+        self.markers = values['markers']
+        self.qos_profile = values['qos_profile']
 
         p = self.problem
         self._layout = JointStateLayout(p)
@@ -110,6 +90,9 @@ class PolicyNode(Node):
         self._s0 = p.initial_state
         self.active: PreparedPolicy | None = None
         self._staged: dict[str, PreparedPolicy] = {}
+        self._loader = PolicyLoader(self)
+        self._file_in_use = ''         # policy_file of the policy in use ('' none / service)
+        self._reverting: str | None = None
         self._last_stamp: int | None = None
         self.answered = 0              # states answered
         self.rejected = 0              # bad state messages skipped
@@ -124,6 +107,8 @@ class PolicyNode(Node):
         self._marker_pub = self.create_publisher(MarkerArray, topics['markers'], qos, **quiet)
         self._state_sub = self.create_subscription(JointState, topics['state'],
                                                    self._on_state, qos)
+        self.dropped = DropCounter(self.get_logger(), self._state_sub.topic_name,
+                                   self._state_sub.get_publisher_count, qos.depth)
         # The load_policy coroutine stays in progress while it awaits the trainer.  In the
         # node's default (mutually exclusive) group it would keep the client's response and
         # the poll timer from running: a deadlock.  A reentrant group of their own lets one
@@ -140,7 +125,11 @@ class PolicyNode(Node):
         self.add_post_set_parameters_callback(self._apply_parameters)
         if policy_file:
             try:
-                self._install(PreparedPolicy.of(load_policy(policy_file, p), policy_file))
+                if policy_file_size(policy_file) <= SYNC_BYTES:
+                    self._install(PreparedPolicy.of(load_policy(policy_file, p), policy_file))
+                    self._file_in_use = policy_file
+                else:
+                    self._load_file(policy_file)
             except SapgaError as exc:
                 self.get_logger().error(f'no policy loaded: {exc}')
         self.get_logger().info(f'{p.name} policy node; load_policy fetches from {service!r}')
@@ -158,7 +147,8 @@ class PolicyNode(Node):
             selector.reset()  # an episode starts
         return selector.select(s)
 
-    def _on_state(self, msg: JointState) -> None:
+    def _on_state(self, msg: JointState, info: dict) -> None:
+        self.dropped.seen(info)
         stamp = stamp_ns(msg)
         if stamp == self._last_stamp:
             return  # answered already: a lockstep re-publish
@@ -197,68 +187,54 @@ class PolicyNode(Node):
         self.get_logger().info(text)
         return text
 
-    def install_json(self, text: str, source: str) -> tuple[bool, str]:
-        """Validate a policy document and swap it in; (success, message)."""
-        try:
-            policy = policy_from_json(text, problem=self.problem, source=source)
-        except SapgaError as exc:
-            self.get_logger().error(f'policy refused, keeping the current one: {exc}')
-            return False, str(exc)
-        return True, self._install(PreparedPolicy.of(policy, source))
+    @property
+    def loading(self) -> str | None:
+        """The source of the policy being prepared in the background, if any."""
+        return self._loader.loading
+
+    def _load_file(self, path: str) -> None:
+        """Load policy file ``path`` in a worker thread; swap it in when it is ready."""
+        self.get_logger().info(f'loading {path} in the background; the policy in use '
+                               'answers meanwhile')
+        self._loader.start(path, lambda: load_policy(path, self.problem), self._file_loaded)
+
+    def _file_loaded(self, result: LoadResult) -> None:
+        if result.prepared is not None:
+            self._install(result.prepared)
+            self._file_in_use = result.source
+            return
+        if not result.current:
+            return
+        self.get_logger().error(f'policy refused, keeping the current one: {result.error}')
+        if self.get_parameter('policy_file').value == result.source:
+            self._reverting = self._file_in_use        # policy_file names the policy in use
+            try:
+                self.set_parameters([Parameter('policy_file', value=self._file_in_use)])
+            finally:
+                self._reverting = None
+
+    async def _prepare_json(self, text: str, source: str) -> LoadResult:
+        """Validate and pack a policy document in a worker thread."""
+        done = Future()
+        self._loader.start(source, lambda: policy_from_json(text, problem=self.problem,
+                                                            source=source), done.set_result)
+        return await done
 
     async def _on_load_policy(self, request: Trigger.Request, response: Trigger.Response
                               ) -> Trigger.Response:
-        text, error = await self._fetch_policy_text()
+        text, error = await fetch_text(self, self._client, self.load_timeout, self._load_group)
         if error is None:
-            response.success, response.message = self.install_json(
-                text, f'service {self._client.srv_name}')
+            result = await self._prepare_json(text, f'service {self._client.srv_name}')
+            if result.prepared is not None:
+                response.success, response.message = True, self._install(result.prepared)
+                self._file_in_use = ''
+                return response
+            error = result.error
+            self.get_logger().error(f'policy refused, keeping the current one: {error}')
         else:
             self.get_logger().error(f'load_policy: {error}; keeping the current policy')
-            response.success, response.message = False, error
+        response.success, response.message = False, error
         return response
-
-    async def _fetch_policy_text(self) -> tuple[str, str | None]:
-        """Call the trainer's Trigger without blocking the executor: (text, error or None)."""
-        done = Future()
-        deadline = time.monotonic() + self.load_timeout
-        call: list[Future] = []
-
-        def finish(result: tuple[str, str | None]) -> None:
-            if not done.done():
-                done.set_result(result)
-
-        def answered(future: Future) -> None:
-            try:
-                reply = future.result()
-            except Exception as exc:  # noqa: BLE001 - reported to the caller
-                finish(('', f'{self._client.srv_name} failed: {exc}'))
-                return
-            if reply is None or not reply.success:
-                why = reply.message[:300] if reply is not None else 'no response'
-                finish(('', f'{self._client.srv_name} refused: {why}'))
-            else:
-                finish((reply.message, None))
-
-        def poll() -> None:
-            if done.done():
-                return
-            if not call and self._client.service_is_ready():
-                call.append(self._client.call_async(Trigger.Request()))
-                call[0].add_done_callback(answered)
-            elif time.monotonic() >= deadline:
-                if call:
-                    self._client.remove_pending_request(call[0])
-                what = 'did not answer' if call else 'is not available'
-                finish(('', f'trainer service {self._client.srv_name} {what} within '
-                            f'{self.load_timeout} s'))
-
-        timer = self.create_timer(POLL_S, poll, callback_group=self._load_group,
-                                  clock=steady_clock())
-        poll()
-        try:
-            return await done
-        finally:
-            self.destroy_timer(timer)
 
     # parameters -----------------------------------------------------------------------------
 
@@ -267,27 +243,42 @@ class PolicyNode(Node):
             reason = check_setting(param.name, param.value)
             if reason:
                 return SetParametersResult(successful=False, reason=reason)
-            if param.name == 'policy_file' and param.value:
+            path = param.value
+            if param.name == 'policy_file' and path and path != self._reverting:
                 try:
-                    policy = load_policy(param.value, self.problem)
+                    if policy_file_size(path) <= SYNC_BYTES:   # else: in the background
+                        self._staged[path] = PreparedPolicy.of(load_policy(path, self.problem),
+                                                               path)
                 except SapgaError as exc:
                     self.get_logger().error(f'policy refused, keeping the current one: {exc}')
                     return SetParametersResult(successful=False, reason=str(exc))
-                self._staged[param.value] = PreparedPolicy.of(policy, param.value)
         return SetParametersResult(successful=True)
 
     def _apply_parameters(self, params: list[Parameter]) -> None:
         for param in params:
+            path = param.value
             if param.name in ('load_timeout', 'markers'):
                 setattr(self, param.name, param.value)
-            elif param.name == 'policy_file' and param.value in self._staged:
-                self._install(self._staged.pop(param.value))
+            elif param.name != 'policy_file' or not path or path == self._reverting:
+                continue
+            elif path in self._staged:
+                self._loader.supersede()
+                self._install(self._staged.pop(path))
+                self._file_in_use = path
+            else:
+                self._load_file(path)
         self._staged.clear()
+
+    def destroy_node(self) -> None:
+        """Drop the results of loads still running, then destroy the node."""
+        if hasattr(self, '_loader'):
+            self._loader.destroy(self)
+        super().destroy_node()
 
 
 def main(args: list[str] | None = None) -> int:
     """``ros2 run sapga_ros policy_node``."""
-    return run_node(lambda: PolicyNode(), args)
+    return run_node(lambda: PolicyNode(), args, parameters=help_rows, name='policy_node')
 
 
 if __name__ == '__main__':

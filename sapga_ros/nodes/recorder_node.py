@@ -13,7 +13,8 @@ Service ``~/ready`` (``std_srvs/Trigger``): success once every recorded topic ha
 ``message`` names what is missing.  A simulator with
 ``wait_for_recorder`` (and ``sapga launch``) starts the run only then, so nothing is lost.
 
-Parameters (all read-only; msg_configs/params/recorder_node.yaml lists them):
+Parameters (all read-only; ``recorder_params.py`` declares them, ``recorder_node --help``
+prints them with their ranges; msg_configs/params/recorder_node.yaml lists them):
 
 ==============  ==========  =================================================================
 name            default     meaning
@@ -39,7 +40,10 @@ delta           0.0         goal delta written to the bag metadata (0: the probl
 ==============  ==========  =================================================================
 
 Ctrl-C, SIGTERM and a shutdown of the ROS context finish the bag (summary, footer,
-``metadata.yaml``); after a SIGKILL, ``sapga bag reindex DIR`` completes it.
+``metadata.yaml``); after a SIGKILL, ``sapga bag reindex DIR`` completes it.  Messages that
+never reached the recorder (its queue overflowed: ``queue_depth``, or the network lost them)
+are counted per topic from the publishers' sequence numbers, with a throttled warning and a
+total in the final line (``sim_nodes/ros/dropped.py``).
 """
 from __future__ import annotations
 
@@ -52,10 +56,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-import rclpy
-from rcl_interfaces.msg import ParameterDescriptor
-from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile
@@ -63,6 +64,7 @@ from rclpy.signals import SignalHandlerOptions
 from std_srvs.srv import Trigger
 
 from sapga_ros.errors import SapgaError
+from sapga_ros.nodes.recorder_params import PARAMETERS, help_rows
 from sapga_ros.nodes.recorder_qos import (adapt_to_offers, describe, incompatible,
                                           offered_profile, role_qos)
 from sapga_ros.recording.events import OPTIONAL_ROLES, ROLE_TYPES
@@ -70,9 +72,10 @@ from sapga_ros.recording.metadata import TopicInfo
 from sapga_ros.recording.schemas import (full_type_name, message_definition, publish_time_ns,
                                          type_hash)
 from sapga_ros.recording.session import RecordingSession, free_bag_path, utc_stamp
-from sapga_ros.recording.writer import DEFAULT_CHUNK_SIZE
 from sim_nodes.problem import load_problem
-from sim_nodes.ros.common import THROTTLE_S, spin_guarded, topic_names
+from sim_nodes.ros.common import THROTTLE_S, run_node, topic_names
+from sim_nodes.ros.dropped import DropCounter
+from sim_nodes.ros.params import declare
 
 GRAPH_PERIOD_S = 1.0        # [s] between looks at the graph (new publishers, their QoS)
 
@@ -91,7 +94,7 @@ class RecorderNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('recorder', **kwargs)
-        p = self._declare_parameters()
+        p = declare(self, PARAMETERS)
         self._problem = load_problem(p['problem'])
         self._roles = {role: self._resolve(name)
                        for role, name in topic_names(self._problem).items() if role in ROLE_TYPES}
@@ -109,6 +112,7 @@ class RecorderNode(Node):
                       'state_names': json.dumps(self._problem.state_names),
                       'node': self.get_fully_qualified_name()})
         self._subs: dict[str, tuple[Any, str, QoSProfile]] = {}
+        self.dropped: dict[str, DropCounter] = {}
         self._pending: dict[str, str | None] = {}
         self.write_errors = 0
         # the event topic first: of messages ready together, the executor takes it first, so
@@ -124,34 +128,7 @@ class RecorderNode(Node):
         self.get_logger().info(f'recording {", ".join(wanted)} to {self._session.path} '
                                f'(split per {p["split"]})')
 
-    # parameters -------------------------------------------------------------------------
-
-    def _declare_parameters(self) -> dict[str, Any]:
-        specs = [('problem', 'acrobot', 'msg_configs/<problem>.yaml to record'),
-                 ('output_dir', 'recordings', 'directory the bag directory is made in'),
-                 ('bag', '', "name of the bag directory ('' = <problem>_<UTC time>)"),
-                 ('split', 'run', 'run or episode'),
-                 ('chunk_size', DEFAULT_CHUNK_SIZE, 'uncompressed chunk size [bytes]'),
-                 ('flush_period', 1.0, 'close the open chunk this often [s]; 0: by size'),
-                 ('compression', 'zstd', 'zstd, lz4 or none'),
-                 ('queue_depth', 1000, 'subscription history depth'),
-                 ('delta', 0.0, 'goal delta for the metadata; 0: the problem default')]
-        values = {}
-        try:
-            for name, default, text in specs:
-                values[name] = self.declare_parameter(name, default, ParameterDescriptor(
-                    description=text, read_only=True)).value
-            self.declare_parameter('topics', Parameter.Type.STRING_ARRAY, ParameterDescriptor(
-                description='topics: name or name:pkg/msg/Type (default: the problem)',
-                read_only=True))
-        except ParameterException as exc:
-            raise SapgaError(f'recorder: {exc}') from None
-        for name, low, high in (('queue_depth', 1, 1_000_000), ('flush_period', 0.0, 3600.0),
-                                ('delta', 0.0, 1e9)):
-            if not low <= values[name] <= high:     # NaN fails both
-                raise SapgaError(f'recorder: {name} {values[name]}: expected a value in '
-                                 f'[{low:g}, {high:g}]')
-        return values
+    # names ------------------------------------------------------------------------------
 
     @staticmethod
     def _plain_name(output_dir: str, bag: str) -> Path:
@@ -200,6 +177,10 @@ class RecorderNode(Node):
                                        functools.partial(self._on_message, topic, type_name),
                                        qos, raw=True)
         self._subs[topic] = (sub, type_name, qos)
+        if topic not in self.dropped:
+            self.dropped[topic] = DropCounter(self.get_logger(), topic,
+                                              lambda: self._subs[topic][0].get_publisher_count(),
+                                              qos.depth)
         return True
 
     def _check_graph(self) -> None:
@@ -267,6 +248,7 @@ class RecorderNode(Node):
 
     def _on_message(self, topic: str, type_name: str, data: bytes,
                     msg_info: dict[str, Any]) -> None:
+        self.dropped[topic].seen(msg_info)
         receive_ns = int(msg_info.get('received_timestamp') or 0) or time.time_ns()
         source_ns = int(msg_info.get('source_timestamp') or 0)
         if not self._recorded(topic):
@@ -293,6 +275,9 @@ class RecorderNode(Node):
                 line = f'error: {exc}'
             if self.write_errors:
                 line += f'; {self.write_errors} messages could not be written'
+            lost = sum(d.count for d in self.dropped.values())
+            if lost:
+                line += f'; {lost} messages were dropped before they reached the recorder'
             if self.context.ok():
                 self.get_logger().info(line)
             else:   # after a signal the context is down and rosout is gone
@@ -307,34 +292,20 @@ def _no_interrupt(signum: int, frame: Any) -> None:
     """SIGINT: nothing here; rclpy's handler has already stopped spinning."""
 
 
+def _finishing() -> None:
+    """SIGTERM from now on: ignored, so that a second one lets the bag finish."""
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+
+
 def main(args: list[str] | None = None) -> int:
     """Run the recorder until Ctrl-C, SIGTERM or shutdown; the bag is finished."""
     # rclpy's SIGINT and SIGTERM handlers shut the context down: spinning then ends between
     # callbacks and `finally` finishes the bag.  They chain to the Python handler, which must
     # not raise KeyboardInterrupt in the middle of a write.
     signal.signal(signal.SIGINT, _no_interrupt)
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.ALL)
-    node = None
-    try:
-        node = RecorderNode()
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        spin_guarded(executor, node.get_logger())
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except SapgaError as exc:
-        print(f'recorder_node: error: {" ".join(str(exc).split())}', file=sys.stderr, flush=True)
-        return 1
-    except Exception:  # noqa: BLE001
-        if rclpy.ok():
-            raise
-        # Ctrl-C while starting up: the context was shut down under the constructor
-    finally:
-        signal.signal(signal.SIGTERM, signal.SIG_IGN)   # a second SIGTERM: let the bag finish
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return run_node(RecorderNode, args, executor=SingleThreadedExecutor, parameters=help_rows,
+                    name='recorder_node', on_exit=_finishing,
+                    signal_handler_options=SignalHandlerOptions.ALL)
 
 
 if __name__ == '__main__':

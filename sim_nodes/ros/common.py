@@ -13,32 +13,25 @@ Everything a node needs from a problem's ``ros:`` section, in one place:
   layout (``joint``, ``field``); ``from_msg`` checks names, lengths and finiteness and
   raises ``MessageError`` naming what is wrong;
 * ``stamp_ns``/``set_stamp``/``steady_clock``/``THROTTLE_S``: time helpers;
-* ``run_node(make_node, args)``: the body of every executable's ``main()``: ``rclpy.init``,
-  build the node, spin, clean shutdown on Ctrl-C, one-line error and exit code 1 on a
-  configuration error;
-* ``spin_guarded(executor, logger)``: spin so that no callback's exception ends the node: each
-  is logged as one line and the node goes on (``NodeExit`` alone stops it).
+* ``run_node``, ``spin_guarded``, ``NodeExit``, ``one_line``: from ``runner.py`` (the body
+  of every executable's ``main()``: --help, ROS arguments, spin, exit codes).
 """
 from __future__ import annotations
 
 import array
 import math
-import sys
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
-import rclpy
 from rclpy.clock import Clock, ClockType
 from rclpy.event_handler import PublisherEventCallbacks
-from rclpy.exceptions import ParameterException
-from rclpy.executors import Executor, ExternalShutdownException
-from rclpy.node import Node
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy,
                        qos_profile_sensor_data)
 from sensor_msgs.msg import JointState
 
 from sim_nodes.errors import ConfigError, SapgaError
 from sim_nodes.problem import Problem
+from sim_nodes.ros.runner import NodeExit, one_line, run_node, spin_guarded  # noqa: F401
 
 THROTTLE_S = 2.0  # [s] between repeats of a warning about bad input
 DEFAULT_TOPICS = {'state': 'joint_states', 'command': 'command', 'reward': 'reward',
@@ -65,30 +58,6 @@ _HISTORY = {'keep_last': HistoryPolicy.KEEP_LAST, 'keep_all': HistoryPolicy.KEEP
 
 class MessageError(SapgaError):
     """A received message fails validation (wrong names, sizes, non-finite values)."""
-
-
-class NodeExit(SapgaError):
-    """Raised by a callback that must stop its node: one line on stderr, exit code 1."""
-
-
-def one_line(exc: BaseException, limit: int = 300) -> str:
-    """``Type: message`` of an exception on one line, at most ``limit`` characters."""
-    text = ' '.join(str(exc).split())
-    return f'{type(exc).__name__}: {text}'[:limit]
-
-
-def spin_guarded(executor: Executor, logger: Any) -> None:
-    """Spin ``executor`` until its context shuts down; a callback that raises is logged as
-    one line and the executor goes on.  ``NodeExit``, Ctrl-C and external shutdown end it."""
-    while executor.context.ok():
-        try:
-            executor.spin_once()
-        except (NodeExit, KeyboardInterrupt, ExternalShutdownException):
-            raise
-        except Exception as exc:  # noqa: BLE001 - no callback may end the node
-            if not executor.context.ok():
-                return
-            logger.error(f'callback failed, going on: {one_line(exc)}')
 
 
 def topic_names(problem: Problem) -> dict[str, str]:
@@ -250,37 +219,3 @@ class JointStateLayout:
                 raise MessageError(f'JointState: {self.problem.state_names[d]} is not finite '
                                    f'({s[d]})')
         return s
-
-
-def run_node(make_node: Callable[[], Node], args: list[str] | None = None,
-             executor: Callable[[], Executor] | None = None) -> int:
-    """Run one node the standard way and return the process exit code.
-
-    ``rclpy.init(args)`` -> ``make_node()`` -> spin (``executor()`` if given, else the
-    default single-threaded one) -> on Ctrl-C or external shutdown: exit 0; on a
-    configuration error (``SapgaError``, bad parameter): one line on stderr, exit 1 ->
-    always ``destroy_node`` and ``rclpy.try_shutdown``.  A main() is then one line:
-    ``return run_node(lambda: MyNode(), args)``.
-    """
-    rclpy.init(args=args)
-    node = None
-    code = 0
-    try:
-        node = make_node()
-        ex = executor() if executor is not None else rclpy.get_global_executor()
-        ex.add_node(node)
-        spin_guarded(ex, node.get_logger())
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except (SapgaError, ParameterException) as exc:
-        print(f'error: {exc}', file=sys.stderr)
-        code = 1
-    except Exception:  # noqa: BLE001
-        if rclpy.ok():
-            raise
-        # Ctrl-C while starting up: the context was shut down under the constructor
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return code

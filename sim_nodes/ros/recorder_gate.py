@@ -12,20 +12,26 @@ still being matched.  ``RecorderGate`` declares two parameters on its node:
 """
 from __future__ import annotations
 
-import math
 import time
 from typing import Any, Callable
 
-from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 from std_srvs.srv import Trigger
 
-from sim_nodes.errors import ConfigError
 from sim_nodes.ros.common import NodeExit, steady_clock
+from sim_nodes.ros.params import Param, declare
 
 POLL_S = 0.1                # [s] between readiness questions
 DEFAULT_TIMEOUT_S = 60.0
 READY_SERVICE = 'ready'     # relative to the recorder node: <recorder>/ready
+
+
+def gate_parameters() -> list[Param]:
+    """The two parameters the gate declares on its node."""
+    return [Param('wait_for_recorder', '', 'recorder node to wait for before the run starts '
+                  "('' = none)", read_only=True),
+            Param('recorder_timeout', DEFAULT_TIMEOUT_S, '[s] how long to wait for the '
+                  'recorder (longer: the node stops, exit 1)', 1e-3, 86400.0, read_only=True)]
 
 
 class RecorderGate:
@@ -34,16 +40,8 @@ class RecorderGate:
     def __init__(self, node: Node, on_ready: Callable[[], None]) -> None:
         self._node = node
         self._on_ready = on_ready
-        recorder = node.declare_parameter('wait_for_recorder', '', ParameterDescriptor(
-            description="recorder node to wait for before the run starts ('' = none)",
-            read_only=True)).value
-        timeout = node.declare_parameter('recorder_timeout', DEFAULT_TIMEOUT_S,
-                                         ParameterDescriptor(description='[s] how long to wait '
-                                                             'for the recorder',
-                                                             read_only=True)).value
-        if not math.isfinite(timeout) or timeout <= 0:
-            raise ConfigError(f'{node.get_name()}: recorder_timeout: expected seconds > 0, '
-                              f'got {timeout}')
+        values = declare(node, gate_parameters())
+        recorder, timeout = values['wait_for_recorder'], values['recorder_timeout']
         self.recorder = recorder
         self.open = not recorder
         self._last = 'no answer yet'

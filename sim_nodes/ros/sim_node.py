@@ -21,7 +21,7 @@ from types import SimpleNamespace
 from typing import Any, Callable
 
 import numpy as np
-from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock
@@ -37,10 +37,13 @@ from sim_nodes.problem import load_problem
 from sim_nodes.ros.commands import CommandCheck, StampedCommand
 from sim_nodes.ros.common import (CLOCK_QOS, EVENT_QOS, QUIET_PUBLISHER, JointStateLayout,
                                   MessageError, run_node, steady_clock, topic_names, topic_qos)
+from sim_nodes.ros.dropped import DropCounter
 from sim_nodes.ros.markers import PendulumMarkers
+from sim_nodes.ros.params import declare
 from sim_nodes.ros.recorder_gate import RecorderGate
 from sim_nodes.ros.sim_settings import (MODES, SimSettings, check_setting,  # noqa: F401
-                                        declare_settings, read_settings)
+                                        declare_settings, help_rows, read_settings,
+                                        sim_parameters)
 
 
 def _json_number(x: float) -> float | None:
@@ -54,8 +57,7 @@ class SimNode(Node):
     def __init__(self, default_problem: str = 'acrobot', node_name: str = 'sim',
                  **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
-        name = self.declare_parameter('problem', default_problem, ParameterDescriptor(
-            description='problem name: msg_configs/<problem>.yaml', read_only=True)).value
+        name = declare(self, sim_parameters(default_problem)[:1])['problem']
         self.problem = problem = load_problem(name)
         self._mdp_step = model_module(problem.model).mdp_step
         self._p = problem.params()
@@ -83,6 +85,9 @@ class SimNode(Node):
                                                      self._on_command, qos)
         self._stamped_sub = self.create_subscription(JointState, topics['command_stamped'],
                                                      self._on_stamped_command, qos)
+        self.dropped = {sub.topic_name: DropCounter(self.get_logger(), sub.topic_name,
+                                                    sub.get_publisher_count, qos.depth)
+                        for sub in (self._command_sub, self._stamped_sub)}
         self._reset_srv = self.create_service(Trigger, 'reset', self._on_reset)
         self._step_timer = None
         self._republish_timer = None
@@ -152,8 +157,9 @@ class SimNode(Node):
 
     # callbacks ----------------------------------------------------------------------------
 
-    def _on_command(self, msg: Float64) -> None:
+    def _on_command(self, msg: Float64, info: dict) -> None:
         """Hand-use command (no stamp): lockstep takes it as the current state's answer."""
+        self.dropped[self._command_sub.topic_name].seen(info)
         value = self.commands.value(msg.data)
         if value is None:
             return
@@ -162,8 +168,9 @@ class SimNode(Node):
         else:
             self._command = value
 
-    def _on_stamped_command(self, msg: JointState) -> None:
+    def _on_stamped_command(self, msg: JointState, info: dict) -> None:
         """The policy node's answer to the state stamped ``header.stamp``."""
+        self.dropped[self._stamped_sub.topic_name].seen(info)
         try:
             answered, value = self._stamped.read(msg)
         except MessageError as exc:
@@ -282,7 +289,8 @@ def main(args: list[str] | None = None, problem: str = 'acrobot',
          node_name: str = GENERIC_SIM) -> int:
     """``ros2 run sapga_ros sim_node``: a simulator node of any problem (``problem`` is the
     default of the ``problem`` parameter)."""
-    return run_node(lambda: SimNode(default_problem=problem, node_name=node_name), args)
+    return run_node(lambda: SimNode(default_problem=problem, node_name=node_name), args,
+                    parameters=lambda: help_rows(problem), name=node_name)
 
 
 def model_main(model: str) -> Callable[[list[str] | None], int]:

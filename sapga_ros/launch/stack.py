@@ -1,0 +1,207 @@
+"""The deployment stack of the launches: recorder, simulator and policy node under a
+supervisor, driven by the launch's own node (``launch_node.py``), and the episode summaries.
+
+Every node gets the launch's namespace, remaps and ``--ros-args`` tail
+(``ros_args.RosOptions``); the waits use the names as the nodes resolve them.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from sapga_ros.errors import SapgaError
+from sapga_ros.launch import LaunchError, Supervisor, find_executable, write_params_file
+from sapga_ros.launch.launch_node import LaunchRos
+from sapga_ros.recording.reader import read_recording
+from sapga_ros.recording.session import free_bag_path, utc_stamp
+from sapga_ros.recording.verify import recording_gaps
+from sim_nodes.models.registry import sim_executable
+from sim_nodes.problem import Problem
+
+CONNECT_TIMEOUT_S = 90.0   # [s] for every node to start and join the graph
+SETTLE_S = 1.0             # [s] after the graph is complete, for endpoints to match
+STALL_S = 30.0             # [s] lockstep: no new state this long = the episode is stuck
+REPUBLISH_S = 0.2          # [s] lockstep re-publish period once the simulator is let go
+RECORDED_S = 30.0          # [s] for the recorder to write every message of the episodes
+
+
+@dataclass(frozen=True)
+class StackOptions:
+    """What a deployment runs."""
+
+    problem: Problem
+    out: Path                      # recordings go here
+    delta: float                   # goal difficulty of the simulator
+    episodes: int = 1
+    mode: str = 'lockstep'
+    real_time_factor: float = 1.0
+
+
+@dataclass
+class DeployStack:
+    """Recorder, simulator and policy node under a supervisor, driven by the launcher node."""
+
+    sup: Supervisor
+    ros: LaunchRos
+    opts: StackOptions
+    params_dir: Path
+    bag: Path | None = None             # the recording: a rosbag2 bag directory
+    topics: dict[str, str] = field(default_factory=dict)   # role -> resolved topic name
+
+    def start(self) -> None:
+        """Start the recorder and the policy node (the simulator comes once the policy node
+        has its policy: ``start_sim``)."""
+        o = self.opts
+        o.out.mkdir(parents=True, exist_ok=True)
+        self.bag = free_bag_path(o.out, f'{o.problem.name}_{utc_stamp()}')
+        self.topics = {role: self.ros.node.resolve_topic_name(name)
+                       for role, name in self.ros.node.topics.items()}
+        self.spawn('recorder', 'recorder_node', {'problem': o.problem.name,
+                                                 'output_dir': str(o.out),
+                                                 'bag': self.bag.name,
+                                                 'delta': float(o.delta)})
+        self.spawn('policy', 'policy_node', {'problem': o.problem.name})
+
+    def start_sim(self) -> None:
+        """Start the simulator: lockstep, silent, its first episode once the recorder is
+        ready (``wait_for_recorder``)."""
+        o = self.opts
+        self.spawn('sim', sim_executable(o.problem.model), {
+            'problem': o.problem.name, 'mode': 'lockstep', 'delta': float(o.delta),
+            'auto_reset': True, 'max_episodes': o.episodes, 'republish_period': 0.0,
+            'real_time_factor': float(o.real_time_factor), 'wait_for_recorder': 'recorder',
+            'recorder_timeout': CONNECT_TIMEOUT_S})
+
+    def spawn(self, name: str, exe: str, params: dict[str, Any]) -> None:
+        """Start package executable ``exe`` as child ``name`` with ``params``."""
+        path = write_params_file(self.params_dir / f'{name}.yaml', params)
+        self.sup.start(name, [find_executable(exe), *self.ros.options.node_args(path)])
+
+    def wait_connected(self, extra: dict[str, tuple[int, int]] | None = None) -> None:
+        """Wait until every topic of the stack has its publishers and subscribers."""
+        t = self.topics             # as the nodes resolve them: namespace and remaps
+        # the launcher node itself subscribes to the state and the episode events; the
+        # policy node answers on command_stamped (command is for hand use); the sim and the
+        # policy node both draw on markers
+        needs = {t['state']: (1, 3), t['command_stamped']: (1, 2), t['command']: (0, 2),
+                 t['reward']: (1, 1), t['event']: (1, 2), t['exemplar']: (1, 1),
+                 t['markers']: (2, 1), **(extra or {})}
+        node = self.ros.node
+        try:
+            self.sup.wait(lambda: not node.missing_links(needs), timeout=CONNECT_TIMEOUT_S,
+                          what='the nodes to connect')
+        except LaunchError as exc:
+            if 'timed out' in str(exc):
+                raise LaunchError(f'{exc}; missing: {"; ".join(node.missing_links(needs))}'
+                                  ) from exc
+            raise
+        self.wait_recorder_ready()
+        time.sleep(SETTLE_S)
+        self.sup.check()
+        self.sup.say('all nodes connected')
+
+    def wait_recorder_ready(self) -> None:
+        """Wait until the recorder hears every publisher of every recorded topic."""
+        said = ['no answer']
+
+        def ready() -> bool:
+            answer = self.ros.trigger(self.sup, 'recorder/ready')
+            said[0] = answer.message
+            return answer.success
+
+        try:
+            self.sup.wait(ready, timeout=CONNECT_TIMEOUT_S, what='the recorder')
+        except LaunchError as exc:
+            if 'timed out' in str(exc):
+                raise LaunchError(f'the recorder is not ready after {CONNECT_TIMEOUT_S:g} s: '
+                                  f'{said[0]}') from exc
+            raise
+        self.sup.say(f'recorder ready: {said[0]}')
+
+    def go(self) -> None:
+        """Let the simulator go (once the policy node has its policy): lockstep re-publishes
+        the waiting state for the policy to answer; realtime starts stepping."""
+        self.ros.node.last_new_state = time.monotonic()
+        change = ({'mode': 'realtime'} if self.opts.mode == 'realtime'
+                  else {'republish_period': REPUBLISH_S})
+        self.ros.set_parameters(self.sup, sim_executable(self.opts.problem.model), change)
+
+    def run_episodes(self) -> list[dict]:
+        """Wait for the N episode end events (lockstep: fail if the episode stalls)."""
+        node = self.ros.node
+        n = self.opts.episodes
+
+        def finished() -> list[dict] | None:
+            ends = node.end_events()
+            if len(ends) >= n:
+                return ends[:n]
+            if self.opts.mode == 'lockstep' and \
+                    time.monotonic() - node.last_new_state > STALL_S:
+                raise LaunchError(f'lockstep stalled: no new state for {STALL_S:g} s after '
+                                  f'{node.states} states (is the policy node answering?)')
+            return None
+
+        return self.sup.wait(finished, what=f'{n} episodes')
+
+    def recording_gaps(self, ends: list[dict]) -> list[str]:
+        """What the bag lacks of the episodes that ended with ``ends`` ([]: whole)."""
+        try:
+            rec = read_recording(self.bag)
+        except SapgaError as exc:
+            return [str(exc)]
+        return recording_gaps(rec, self.topics, ends, lockstep=self.opts.mode == 'lockstep')
+
+    def wait_recorded(self, ends: list[dict]) -> None:
+        """Wait until the bag on disk holds every message of the episodes, so that stopping
+        the recorder loses none (a busy recorder can lag behind a lockstep episode; it
+        closes a chunk every second).  After ``RECORDED_S`` the launch goes on; the bag is
+        checked again once finished (``check_recording``)."""
+        try:
+            self.sup.wait(lambda: not self.recording_gaps(ends), timeout=RECORDED_S,
+                          what='the recording')
+        except LaunchError as exc:
+            if 'timed out' not in str(exc):
+                raise
+
+    def check_recording(self, ends: list[dict]) -> str | None:
+        """After the nodes stopped: why the finished bag is not whole, or None."""
+        gaps = self.recording_gaps(ends)
+        if not gaps:
+            rec = read_recording(self.bag)
+            if not rec.complete:
+                gaps = [rec.error or 'not finished']
+        return f'the recording {self.bag} is incomplete: {"; ".join(gaps)}' if gaps else None
+
+    def recordings(self) -> list[Path]:
+        """The bag written by this run's recorder (none if it wrote nothing)."""
+        return [self.bag] if self.bag is not None and self.bag.is_dir() else []
+
+
+def offline_episode(policy: Any, delta: float) -> dict:
+    """The policy's offline evaluation (``sapga eval --json``): return, delta*, steps."""
+    from sapga_ros.evaluation.any_policy import run_policy_episode
+    return run_policy_episode(policy, delta).summary()
+
+
+def event_summary(event: dict) -> dict:
+    """Return, delta*, steps of an episode end event (delta* inf as in ``sapga eval``)."""
+    dstar = event.get('delta_star')
+    return {'return': event.get('return'), 'delta_star': math.inf if dstar is None else dstar,
+            'steps': event.get('step'), 'reached': event.get('event') == 'goal'}
+
+
+def same_episode(ros_ep: dict, offline: dict) -> bool:
+    """Exactly equal return, delta*, steps and goal."""
+    return all(ros_ep[k] == offline[k] for k in ('return', 'delta_star', 'steps', 'reached'))
+
+
+def episode_lines(ends: list[dict]) -> list[str]:
+    lines = [f'{"episode":>7} {"end":<10} {"steps":>5} {"return":>12} {"delta*":>9}']
+    for e in ends:
+        s = event_summary(e)
+        lines.append(f'{e.get("episode", "?"):>7} {e.get("event"):<10} {s["steps"]:>5} '
+                     f'{s["return"]:>12.4f} {s["delta_star"]:>9.5f}')
+    return lines

@@ -1,0 +1,47 @@
+"""The policy node's parameters: one table for their declaration with ranges, their checks
+and ``policy_node --help`` (``sim_nodes/ros/params.py``).
+
+================  ========  ============  ================================================
+name              type      default       meaning
+================  ========  ============  ================================================
+problem           string    acrobot       msg_configs/<problem>.yaml (read-only)
+policy_file       string    ''            a policy JSON file (SPEC 3.3), loaded at start;
+                                          setting it loads that file or is refused
+trainer_service   string    get_policy    the trainer's std_srvs/Trigger (read-only)
+load_timeout      double    5.0           [s] wait for the trainer's answer at most
+markers           bool      true          publish the exemplar ghost on ``markers``
+qos_profile       string    reliable      ``reliable`` (the problem's ``ros.qos``) |
+                                          ``sensor_data`` (best effort; read-only)
+================  ========  ============  ================================================
+
+(``policy_node --help`` prints the ranges too.)
+"""
+from __future__ import annotations
+
+from typing import Any
+
+from sim_nodes.ros.common import QOS_PROFILES
+from sim_nodes.ros.params import Param, Row, check
+
+PARAMETERS = (
+    Param('problem', 'acrobot', 'msg_configs/<problem>.yaml', read_only=True),
+    Param('policy_file', '', 'policy JSON file (SPEC 3.3) loaded at start; setting it loads '
+          "that file ('' = none)"),
+    Param('trainer_service', 'get_policy', "the trainer's std_srvs/Trigger that load_policy "
+          'calls', read_only=True),
+    Param('load_timeout', 5.0, '[s] how long load_policy waits for the trainer', 1e-3,
+          86400.0),
+    Param('markers', True, 'publish the exemplar in use as a ghost on markers'),
+    Param('qos_profile', 'reliable', 'reliable (the problem ros.qos) | sensor_data (best '
+          'effort)', choices=QOS_PROFILES, read_only=True),
+)
+
+
+def help_rows() -> list[Row]:
+    """The rows of ``policy_node --help``."""
+    return [p.row() for p in PARAMETERS]
+
+
+def check_setting(name: str, value: Any) -> str | None:
+    """Why ``value`` is not acceptable for parameter ``name``, or None (files: the node)."""
+    return check(PARAMETERS, name, value)

@@ -1,0 +1,229 @@
+"""Hostile load on the sim, policy and recorder nodes over real DDS: a flood their queues
+cannot hold is counted and warned about (sim_nodes/ros/dropped.py), and an exception in any
+callback (timer, subscription, service) is one log line while the node goes on
+(sim_nodes/ros/runner.py: spin_guarded, as every executable spins)."""
+from __future__ import annotations
+
+import threading
+import time
+from typing import Any, Callable
+
+import numpy as np
+import pytest
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from std_msgs.msg import Float64, String
+from std_srvs.srv import Trigger
+
+from ros_helpers import PROBE_QOS, Probe, free_domain_id
+from sapga_ros.exemplars.policy import ExemplarPolicy
+from sapga_ros.nodes.policy_node import PolicyNode
+from sapga_ros.nodes.recorder_node import RecorderNode
+from sim_nodes.problem import load_problem
+from sim_nodes.ros.common import JointStateLayout
+from sim_nodes.ros.runner import spin_guarded
+from sim_nodes.ros.sim_node import SimNode
+
+FLOOD = 3000        # messages published as fast as the test can
+WAIT_S = 60.0
+
+
+class Guarded:
+    """Nodes of one context spun by ``spin_guarded`` on a thread, as the executables spin."""
+
+    def __init__(self, monkeypatch: pytest.MonkeyPatch) -> None:
+        domain = free_domain_id()
+        monkeypatch.setenv('ROS_DOMAIN_ID', str(domain))
+        monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, domain_id=domain)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.nodes: list[Any] = []
+        self.thread: threading.Thread | None = None
+
+    def add(self, make: Callable[..., Any], params: dict[str, Any] | None = None,
+            **kwargs: Any) -> Any:
+        overrides = [Parameter(k, value=v) for k, v in (params or {}).items()]
+        node = make(context=self.context, parameter_overrides=overrides, **kwargs)
+        self.nodes.append(node)
+        self.executor.add_node(node)
+        return node
+
+    def spin(self) -> None:
+        self.thread = threading.Thread(target=spin_guarded,
+                                       args=(self.executor, self.nodes[0].get_logger()),
+                                       daemon=True)
+        self.thread.start()
+
+    def close(self) -> None:
+        self.executor.shutdown(timeout_sec=5.0)
+        for node in self.nodes:
+            node.destroy_node()
+        self.context.try_shutdown()
+        if self.thread is not None:
+            self.thread.join(timeout=5.0)
+
+
+@pytest.fixture
+def guarded(monkeypatch):
+    g = Guarded(monkeypatch)
+    yield g
+    g.close()
+
+
+def wait(condition: Callable[[], Any], what: str, timeout: float = WAIT_S) -> Any:
+    deadline = time.monotonic() + timeout
+    while True:
+        value = condition()
+        if value:
+            return value
+        assert time.monotonic() < deadline, f'timed out waiting for {what}'
+        time.sleep(0.01)
+
+
+@pytest.fixture(scope='module')
+def acrobot():
+    return load_problem('acrobot')
+
+
+def test_a_state_flood_on_the_policy_node_is_counted_and_warned(guarded, acrobot, tmp_path,
+                                                                capfd):
+    """States faster than the policy node answers overflow its sensor-data queue: the
+    dropped ones are counted from the sequence numbers and a warning says how many."""
+    rng = np.random.default_rng(1)
+    ExemplarPolicy(acrobot, rng.uniform(acrobot.low, acrobot.high, (60, 4)),
+                   rng.integers(0, 3, 60)).save(tmp_path / 'p.json')
+    pol = guarded.add(PolicyNode, {'policy_file': str(tmp_path / 'p.json'),
+                                   'qos_profile': 'sensor_data'})
+    probe = guarded.add(Probe, problem=acrobot)
+    guarded.spin()
+    wait(lambda: pol._state_sub.get_publisher_count() == 1, 'discovery')
+    layout = JointStateLayout(acrobot)
+    msgs = [layout.to_msg(s, 0.0, k + 1) for k, s in
+            enumerate(rng.uniform(acrobot.low, acrobot.high, (FLOOD, acrobot.dim)))]
+    for msg in msgs:
+        probe.state_pub.publish(msg)
+    last = layout.to_msg(acrobot.initial_state, 0.0, FLOOD + 1)     # after the flood
+
+    def answered_last() -> bool:
+        probe.state_pub.publish(last)
+        time.sleep(0.05)
+        return pol._last_stamp == FLOOD + 1       # answered (best effort: none hear it)
+
+    wait(answered_last, 'the state after the flood answered')
+    assert pol.dropped.count > 0 and pol.answered + pol.dropped.count <= FLOOD + 1
+    assert 'messages dropped so far' in capfd.readouterr().err
+
+
+def test_a_command_flood_on_the_sim_is_counted(guarded, acrobot):
+    """Commands faster than the sim handles them are counted as dropped, not lost silently."""
+    sim = guarded.add(SimNode, {'mode': 'lockstep', 'qos_profile': 'sensor_data',
+                                'republish_period': 0.0})
+    node = guarded.add(lambda **kw: rclpy.create_node('flooder', **kw))
+    pub = node.create_publisher(Float64, 'command', PROBE_QOS)
+    guarded.spin()
+    wait(lambda: sim._command_sub.get_publisher_count() == 1, 'discovery')
+    for k in range(FLOOD):
+        pub.publish(Float64(data=0.0))
+    wait(lambda: sim.dropped['/command'].count > 0, 'the dropped commands counted')
+    assert sim.total_steps + sim.dropped['/command'].count <= FLOOD
+
+
+def test_a_flood_on_a_recorded_topic_is_counted_by_the_recorder(guarded, tmp_path):
+    """A topic recorded with a queue of 1 that gets a flood: the recorder counts what never
+    reached it and says so when it finishes the bag."""
+    rec = guarded.add(RecorderNode, {'output_dir': str(tmp_path), 'queue_depth': 1,
+                                     'topics': ['flood:std_msgs/msg/Float64']})
+    node = guarded.add(lambda **kw: rclpy.create_node('flooder', **kw))
+    pub = node.create_publisher(Float64, 'flood', QoSProfile(
+        depth=FLOOD, reliability=ReliabilityPolicy.RELIABLE))
+    guarded.spin()
+    wait(lambda: '/flood' in rec._subs and rec._subs['/flood'][0].get_publisher_count() == 1,
+         'discovery')
+    for k in range(FLOOD):
+        pub.publish(Float64(data=float(k)))
+    wait(lambda: rec.dropped['/flood'].count > 0, 'the dropped messages counted')
+    assert rec.message_count + rec.dropped['/flood'].count <= FLOOD
+
+
+def boom(what: str) -> Callable[..., None]:
+    def fail(*args: Any) -> None:
+        raise ValueError(f'{what}\nsecond line')
+    return fail
+
+
+def fragile_entities(guarded: Guarded, node: Any) -> Callable[[], None]:
+    """A raising timer, subscription and service on ``node``; a function that triggers the
+    subscription and the service from a helper node of the same context."""
+    node.create_timer(0.05, boom('timer'))
+    node.create_subscription(String, 'boom_topic', boom('subscription'), 10)
+    node.create_service(Trigger, 'boom_service', boom('service'))
+    helper = rclpy.create_node('boom_helper', context=guarded.context)
+    guarded.nodes.append(helper)
+    pub = helper.create_publisher(String, 'boom_topic', 10)
+    client = helper.create_client(Trigger, 'boom_service')
+
+    def trigger() -> None:
+        wait(lambda: pub.get_subscription_count() == 1 and client.service_is_ready(),
+             'the fragile entities')
+        pub.publish(String(data='x'))
+        client.call_async(Trigger.Request())
+    return trigger
+
+
+@pytest.mark.parametrize('kind', ['sim', 'policy', 'recorder'])
+def test_a_raising_callback_of_any_kind_is_one_line_and_the_node_goes_on(
+        guarded, tmp_path, capfd, kind):
+    """Timer, subscription and service callbacks that raise are logged as one line each; the
+    node keeps doing its own work (the sim steps, the policy node answers, the recorder
+    answers its ready service)."""
+    acrobot = load_problem('acrobot')
+    if kind == 'sim':
+        node = guarded.add(SimNode, {'real_time_factor': 20.0})
+    elif kind == 'policy':
+        rng = np.random.default_rng(2)
+        ExemplarPolicy(acrobot, rng.uniform(acrobot.low, acrobot.high, (20, 4)),
+                       rng.integers(0, 3, 20)).save(tmp_path / 'p.json')
+        node = guarded.add(PolicyNode, {'policy_file': str(tmp_path / 'p.json')})
+    else:
+        node = guarded.add(RecorderNode, {'output_dir': str(tmp_path)})
+    probe = guarded.add(Probe, problem=acrobot)
+    trigger = fragile_entities(guarded, node)
+    guarded.spin()
+    trigger()
+    err = []
+
+    def failed_each_way() -> bool:
+        err.append(capfd.readouterr().err)
+        text = ''.join(err)
+        return all(f'ValueError: {w} second line' in text
+                   for w in ('timer', 'subscription', 'service'))
+
+    wait(failed_each_way, 'a failure of each kind logged')
+    failures = [line for line in ''.join(err).splitlines() if 'callback failed' in line]
+    assert all(line.endswith(' second line') for line in failures), failures
+    if kind == 'sim':
+        before = node.total_steps
+        wait(lambda: node.total_steps > before + 5, 'the sim to step on')
+    elif kind == 'policy':
+        layout = JointStateLayout(acrobot)
+        wait(lambda: node._state_sub.get_publisher_count() >= 1, 'discovery')
+        probe.state_pub.publish(layout.to_msg(acrobot.initial_state, 0.0, 77))
+        wait(lambda: 77 in probe.answered, 'an answer')
+    else:
+        answer = wait(lambda: _call(probe, 'recorder/ready'), 'the ready service')
+        assert answer.message
+    assert guarded.thread.is_alive()
+
+
+def _call(node: Any, name: str) -> Any:
+    client = node.create_client(Trigger, name)
+    if not client.wait_for_service(timeout_sec=1.0):
+        return None
+    future = client.call_async(Trigger.Request())
+    deadline = time.monotonic() + 5.0
+    while not future.done() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    return future.result() if future.done() else None
