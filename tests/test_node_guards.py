@@ -89,21 +89,31 @@ def acrobot():
 
 
 def test_a_state_flood_on_the_policy_node_is_counted_and_warned(guarded, acrobot, tmp_path,
-                                                                capfd):
+                                                                capfd, monkeypatch):
     """States faster than the policy node answers overflow its sensor-data queue: the
-    dropped ones are counted from the sequence numbers and a warning says how many."""
+    dropped ones are counted from the sequence numbers and a warning says how many.  (Each
+    answer is made to take 2 ms, so the flood outruns the node on any machine.)"""
     rng = np.random.default_rng(1)
     ExemplarPolicy(acrobot, rng.uniform(acrobot.low, acrobot.high, (60, 4)),
                    rng.integers(0, 3, 60)).save(tmp_path / 'p.json')
     pol = guarded.add(PolicyNode, {'policy_file': str(tmp_path / 'p.json'),
                                    'qos_profile': 'sensor_data'})
+    select = pol.select
+
+    def slow_select(*args):
+        time.sleep(0.002)
+        return select(*args)
+    monkeypatch.setattr(pol, 'select', slow_select)
     probe = guarded.add(Probe, problem=acrobot)
     guarded.spin()
-    wait(lambda: pol._state_sub.get_publisher_count() == 1, 'discovery')
+    wait(lambda: pol._state_sub.get_publisher_count() == 1
+         and probe.state_pub.get_subscription_count() >= 2, 'discovery both ways')
     layout = JointStateLayout(acrobot)
     msgs = [layout.to_msg(s, 0.0, k + 1) for k, s in
             enumerate(rng.uniform(acrobot.low, acrobot.high, (FLOOD, acrobot.dim)))]
-    for msg in msgs:
+    probe.state_pub.publish(msgs[0])          # the count's base: one message handled
+    wait(lambda: pol.answered >= 1, 'the first state answered')
+    for msg in msgs[1:]:
         probe.state_pub.publish(msg)
     last = layout.to_msg(acrobot.initial_state, 0.0, FLOOD + 1)     # after the flood
 
@@ -124,8 +134,11 @@ def test_a_command_flood_on_the_sim_is_counted(guarded, acrobot):
     node = guarded.add(lambda **kw: rclpy.create_node('flooder', **kw))
     pub = node.create_publisher(Float64, 'command', PROBE_QOS)
     guarded.spin()
-    wait(lambda: sim._command_sub.get_publisher_count() == 1, 'discovery')
-    for k in range(FLOOD):
+    wait(lambda: sim._command_sub.get_publisher_count() == 1
+         and pub.get_subscription_count() >= 1, 'discovery both ways')
+    pub.publish(Float64(data=0.0))            # the count's base: one command handled
+    wait(lambda: sim.total_steps >= 1, 'the first command handled')
+    for k in range(1, FLOOD):
         pub.publish(Float64(data=0.0))
     wait(lambda: sim.dropped['/command'].count > 0, 'the dropped commands counted')
     assert sim.total_steps + sim.dropped['/command'].count <= FLOOD
@@ -140,9 +153,11 @@ def test_a_flood_on_a_recorded_topic_is_counted_by_the_recorder(guarded, tmp_pat
     pub = node.create_publisher(Float64, 'flood', QoSProfile(
         depth=FLOOD, reliability=ReliabilityPolicy.RELIABLE))
     guarded.spin()
-    wait(lambda: '/flood' in rec._subs and rec._subs['/flood'][0].get_publisher_count() == 1,
-         'discovery')
-    for k in range(FLOOD):
+    wait(lambda: '/flood' in rec._subs and rec._subs['/flood'][0].get_publisher_count() == 1
+         and pub.get_subscription_count() >= 1, 'discovery both ways')
+    pub.publish(Float64(data=0.0))            # the count's base: one message recorded
+    wait(lambda: rec.message_count >= 1, 'the first message recorded')
+    for k in range(1, FLOOD):
         pub.publish(Float64(data=float(k)))
     wait(lambda: rec.dropped['/flood'].count > 0, 'the dropped messages counted')
     assert rec.message_count + rec.dropped['/flood'].count <= FLOOD
