@@ -4,6 +4,7 @@
 |s_i - best_i| / scale_i (circular on angles), or infinity when a coordinate with a fixed
 bound (the PDIP's |x| <= 2) is outside it.  A run achieves delta when delta* <= delta.
 """
+import dataclasses
 import math
 
 import numpy as np
@@ -42,14 +43,21 @@ def goal_arrays(problem):
     return problem.best_state, inv_scale, np.array(problem.goal_fixed, dtype=np.float64)
 
 
+def alternative_goal(problem):
+    """``problem`` with its alternative goal reading (goal.alternative_scale) as its goal;
+    None if it has none."""
+    if problem.goal_alt_scale is None:
+        return None
+    return dataclasses.replace(problem, goal_scale=problem.goal_alt_scale)
+
+
 def alt_goal_arrays(problem):
     """(inv_scale, fixed) of the problem's alternative goal reading; empty arrays if none
     (the kernels then measure no alternative delta*)."""
-    if problem.goal_alt_scale is None:
+    alt = alternative_goal(problem)
+    if alt is None:
         return np.zeros(0), np.zeros(0)
-    scale = np.array(problem.goal_alt_scale, dtype=np.float64)
-    inv_scale = np.where(np.isnan(scale), 0.0, 1.0 / np.where(np.isnan(scale), 1.0, scale))
-    return inv_scale, np.array(problem.goal_fixed, dtype=np.float64)
+    return goal_arrays(alt)[1:]
 
 
 def delta_of(problem, s) -> float:

@@ -10,8 +10,6 @@ import os
 import re
 import stat
 import struct
-import subprocess
-import sys
 import zipfile
 import zlib
 from pathlib import Path
@@ -20,6 +18,7 @@ from typing import Callable
 import numpy as np
 import pytest
 
+from process_helpers import sapga_peak_rss
 from sapga_ros.cli import main as cli
 from sapga_ros.errors import CheckpointError
 from sapga_ros.io.atomic import write_atomic
@@ -197,17 +196,10 @@ def test_a_zip_bomb_checkpoint_is_refused_before_it_inflates(tmp_path):
     resuming process's peak RSS (VmHWM) stays small (it was 6.6 GB before the bound)."""
     bomb = zip_bomb(tmp_path / 'ck' / FILENAME)
     assert 3_000_000 < bomb.stat().st_size < 3_500_000
-    code = ('import re, sys\nfrom sapga_ros.cli import main\n'
-            f'rc = main.main(["train", "--resume", "--checkpoint", {str(bomb.parent)!r}, '
-            f'"--out", {str(tmp_path / "p.json")!r}])\n'
-            'status = open("/proc/self/status").read()\n'
-            'print(int(re.search(r"VmHWM:\\s+(\\d+) kB", status).group(1)) // 1024)\n'
-            'sys.exit(rc)')
-    done = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
-                          timeout=120)
-    peak_mib = int(done.stdout.split()[-1])
-    assert done.returncode == 2, done.stderr
-    assert done.stderr.count('\n') == 1 and 'claim 3355443328 bytes uncompressed' in done.stderr
+    rc, stderr, peak_mib = sapga_peak_rss(['train', '--resume', '--checkpoint', str(bomb.parent),
+                                           '--out', str(tmp_path / 'p.json')])
+    assert rc == 2, stderr
+    assert stderr.count('\n') == 1 and 'claim 3355443328 bytes uncompressed' in stderr
     assert peak_mib < 400, peak_mib
 
 

@@ -21,6 +21,7 @@ from mcap.records import Channel, Chunk, Header, Message, Schema
 from rosbags.rosbag2 import Reader as RosbagsReader
 from rosbags.typesys import Stores, get_typestore
 
+from process_helpers import sapga_peak_rss
 from sapga_ros.errors import McapError
 from sapga_ros.recording.metadata import TopicInfo, qos_profile
 from sapga_ros.recording.reader import read_recording
@@ -244,18 +245,8 @@ def message_chunks(path: Path, chunks: int, per_chunk: int) -> Path:
 
 
 def max_rss_of_inspect(path: Path) -> tuple[int, str, int]:
-    """(exit status, stderr, peak RSS [MiB]) of `sapga inspect PATH` in a fresh process.
-
-    The peak is VmHWM of /proc/self/status: that of the process's own memory since exec
-    (getrusage's ru_maxrss would count the forking test process too)."""
-    code = ('import re, sys\nfrom sapga_ros.cli import main\n'
-            f'rc = main.main(["inspect", {str(path)!r}])\n'
-            'status = open("/proc/self/status").read()\n'
-            'print(int(re.search(r"VmHWM:\\s+(\\d+) kB", status).group(1)) // 1024)\n'
-            'sys.exit(rc)')
-    done = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
-                          timeout=120)
-    return done.returncode, done.stderr, int(done.stdout.split()[-1])
+    """(exit status, stderr, peak RSS [MiB]) of `sapga inspect PATH` in a fresh process."""
+    return sapga_peak_rss(['inspect', str(path)])
 
 
 def test_a_zstd_bomb_is_refused_before_it_expands(tmp_path):

@@ -79,16 +79,15 @@ def add_limit_arguments(li: argparse.ArgumentParser) -> None:
 
 
 def cmd_limit(args) -> int:
-    import dataclasses
-
     from sapga_ros.analysis.limit import beam_limit
     from sapga_ros.io.atomic import write_atomic
+    from sim_nodes.goal import alternative_goal
     from sim_nodes.problem import load_problem
     problem = load_problem(args.problem)
     if args.alternative_goal:
-        if problem.goal_alt_scale is None:
+        if alternative_goal(problem) is None:
             raise SapgaError(f'{problem.name} has no alternative goal reading')
-        problem = dataclasses.replace(problem, goal_scale=problem.goal_alt_scale)
+        problem = alternative_goal(problem)
     limit = beam_limit(problem, width=args.width, cells=args.cells, per_cell=args.per_cell,
                        seed=args.seed)
     doc = asdict(limit)

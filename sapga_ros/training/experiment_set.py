@@ -13,6 +13,7 @@ import yaml
 from sapga_ros.errors import ConfigError
 from sapga_ros.exemplars.styles import STYLES
 from sapga_ros.io.bounded import load_yaml, read_bounded
+from sim_nodes.goal import alternative_goal
 from sim_nodes.problem import config_dir, load_problem
 
 MAX_SET_BYTES = 1 << 20
@@ -107,7 +108,7 @@ def load_limits(name: str) -> list[LimitSearch]:
                              _count(e.get('width', 50_000), f'{where}.width', 1, 10 ** 7),
                              _count(e.get('cells', 32), f'{where}.cells', 1, 1000),
                              _count(e.get('per_cell', 4), f'{where}.per_cell', 1, 1000))
-        if search.alternative_goal and load_problem(search.problem).goal_alt_scale is None:
+        if search.alternative_goal and alternative_goal(load_problem(search.problem)) is None:
             raise ConfigError(f'{where}: {search.problem} has no alternative goal reading')
         out.append(search)
     return out

@@ -152,9 +152,8 @@ def run_experiments(name: str, out: str | os.PathLike, only: list[int] | None = 
 
 def _limit(out: Path, search: LimitSearch, scale: float, log) -> None:
     """Run a physical-limit search into ``out/limits/`` unless its file is there."""
-    import dataclasses
-
     from sapga_ros.analysis.limit import beam_limit
+    from sim_nodes.goal import alternative_goal
     from sim_nodes.problem import load_problem
     path = out / 'limits' / search.file_name
     width = max(200, int(search.width * min(scale, 1.0)))
@@ -162,10 +161,10 @@ def _limit(out: Path, search: LimitSearch, scale: float, log) -> None:
         return
     problem = load_problem(search.problem)
     if search.alternative_goal:
-        problem = dataclasses.replace(problem, goal_scale=problem.goal_alt_scale)
+        problem = alternative_goal(problem)
     start = time.perf_counter()
     limit = beam_limit(problem, width=width, cells=search.cells, per_cell=search.per_cell)
-    doc = {**dataclasses.asdict(limit), 'alternative_goal': search.alternative_goal,
+    doc = {**asdict(limit), 'alternative_goal': search.alternative_goal,
            'seconds': time.perf_counter() - start}
     write_atomic(path, json.dumps(doc))
     log(f'limit of {search.problem}{" (alternative goal)" if search.alternative_goal else ""}: '

@@ -92,7 +92,7 @@ def episode_figure(ep: Episode, problem: Any, title: str,
     ax.set_xlabel('time [s]')
     ax.grid(alpha=0.3)
     strobe = fig.add_subplot(grid[:, 1])
-    _draw_strobe(strobe, problem, x, goal_delta)
+    draw_strobe(strobe, problem, x, goal_delta)
     fig.suptitle(title)
     fig.tight_layout()
     return fig
@@ -127,7 +127,8 @@ def _draw_picture(ax: Any, problem: Any, s: np.ndarray, color: Any, alpha: float
                                color=color, alpha=alpha))
 
 
-def _draw_strobe(ax: Any, problem: Any, x: np.ndarray, goal_delta: float | None) -> None:
+def draw_strobe(ax: Any, problem: Any, x: np.ndarray, goal_delta: float | None) -> None:
+    """A stroboscopic picture of the states ``x`` (rows) with the goal pose, on ``ax``."""
     from matplotlib import colormaps
 
     if drawing(problem) is None:

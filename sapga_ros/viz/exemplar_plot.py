@@ -12,6 +12,7 @@ import numpy as np
 
 from sapga_ros.evaluation.state_selector import StateSelector
 from sapga_ros.exemplars.policy import ExemplarPolicy
+from sapga_ros.viz.episode_plot import break_wraps
 
 COLOURS = ('tab:blue', 'tab:grey', 'tab:red', 'tab:green', 'tab:orange')
 
@@ -23,14 +24,6 @@ def _pairs(problem) -> list[tuple[int, int]]:
     pairs = [(i, j) for i, c in enumerate(coords) if c.field == 'position'
              for j, d in enumerate(coords) if d.field == 'velocity' and d.joint == c.joint]
     return pairs or [(i, i + 1) for i in range(0, problem.dim - 1, 2)]
-
-
-def break_wraps(x: np.ndarray, y: np.ndarray, angle: bool):
-    """Insert gaps where an angle wraps round, so no line crosses the picture."""
-    if not angle or len(x) < 2:
-        return x, y
-    cut = np.flatnonzero(np.abs(np.diff(x)) > np.pi) + 1
-    return np.insert(x.astype(float), cut, np.nan), np.insert(y.astype(float), cut, np.nan)
 
 
 def policy_map(policy: ExemplarPolicy, resolution: int = 200):
@@ -100,8 +93,9 @@ def plot_exemplars(policy: ExemplarPolicy, episode, counts: np.ndarray, out: str
         ax.set_title(f'action {max(problem.actions):g} in dark areas', fontsize=9)
     for ax, (i, j) in zip(axes[0], pairs):
         _draw_exemplars(ax, policy, i, j, sizes)
-        xs, ys = break_wraps(episode.states[:, i], episode.states[:, j],
-                             problem.state[i].angle)
+        xs, ys = episode.states[:, i], episode.states[:, j]
+        if problem.state[i].angle:            # the line breaks where the angle wraps
+            ys, xs = break_wraps(ys, xs)
         ax.plot(xs, ys, 'k-', lw=0.6, alpha=0.6, label='trajectory')
         ax.set_xlabel(f'{problem.state[i].name} [{problem.state[i].unit}]')
         ax.set_ylabel(f'{problem.state[j].name} [{problem.state[j].unit}]')

@@ -90,10 +90,10 @@ def _trajectory_figure(out: Path, name: str, episodes: list, problem, delta: flo
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
 
-    from sapga_ros.viz.episode_plot import _draw_strobe
+    from sapga_ros.viz.episode_plot import draw_strobe
     fig, axes = plt.subplots(1, len(episodes), figsize=(6 * len(episodes), 5), squeeze=False)
     for ax, ep, title in zip(axes[0], episodes, titles):
-        _draw_strobe(ax, problem, ep.states, delta)
+        draw_strobe(ax, problem, ep.states, delta)
         ax.set_title(title, fontsize='small')
     fig.tight_layout()
     path = out / name
@@ -142,6 +142,7 @@ def figure5(out: Path) -> list[str]:
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
 
+    from sapga_ros.optim.qlearning import cell_index, greedy
     from sapga_ros.training.loop import TrainConfig, train
     from sapga_ros.viz.exemplar_plot import policy_map
     runs = {m: train(TrainConfig(problem='mountain_car', method=m, steps=FIG5_STEPS, seed=0))
@@ -159,10 +160,9 @@ def figure5(out: Path) -> list[str]:
     axes[0].set_title(f'SAP-GA (state-action): {len(sapga)} exemplars, goal at step '
                       f'{ep.steps}', fontsize='small')
     idx, low, width, tiles = table_.tiling
-    cells = np.clip(((np.stack(np.meshgrid(xs, ys), -1) - low) / width).astype(int), 0,
-                    tiles - 1)
-    qgrid = table_.problem.action_values[np.argmax(
-        table_.q[cells[..., 0] + tiles * cells[..., 1]], axis=-1)]
+    qgrid = np.array([[table_.problem.action_values[
+        greedy(table_.q, cell_index(np.array([x, y]), idx, low, width, tiles))]
+        for x in xs] for y in ys])               # the kernels' own tiling and greedy choice
     axes[1].pcolormesh(xs, ys, qgrid, cmap='Greys', shading='auto', vmin=-1, vmax=1.5)
     qep = table_.episode(0.0)
     axes[1].plot(qep.states[:, 0], qep.states[:, 1], 'r-', lw=1)
