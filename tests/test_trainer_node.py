@@ -285,7 +285,8 @@ def test_a_failed_run_is_reported_and_the_next_run_works(ros, tmp_path, capfd):
     states = client.states()
     assert states.index('failed') < len(states) - 1 - states[::-1].index('training')
     assert client.last()['level'] == 0 and int(client.last()['steps']) >= BUDGET
-    assert not trainer.training
+    # 'done' is published by the training thread just before it returns
+    ros.wait_for(lambda: not trainer.training, 'the training thread to end')
     err = capfd.readouterr().err
     assert re.search(r'\[ERROR\] \[[\d.]+\] \[trainer_node\]: training failed: ', err), err
     assert re.search(r'\[INFO\] \[[\d.]+\] \[trainer_node\]: steps ', err), err
