@@ -9,7 +9,8 @@ say how many steps each took), a whole recording holds, on the topics of their r
   per episode (lockstep re-publishes repeat a stamp and count once);
 - in lockstep, a command for every step and every restart (the command answering an
   episode's final state starts the next one), on ``command_stamped`` or the hand-use
-  ``command``; realtime steps hold the last command.
+  ``command``, and the exemplar index of every such answer; realtime steps hold the last
+  command.
 
 Markers are pictures, not data: they are not required here (the last few of a run can be
 missing from a bag; see tests/test_recording_launch.py).
@@ -48,4 +49,7 @@ def recording_gaps(rec: Recording, topics: Mapping[str, str],
         commands = sum(len(by_topic.get(topics[role], []))
                        for role in ('command', 'command_stamped') if role in topics)
         have['commands'] = (commands, steps + n - 1)
+        if 'exemplar' in topics:    # the policy node names the exemplar of every answer
+            have['exemplar indices'] = (len(by_topic.get(topics['exemplar'], [])),
+                                        steps + n - 1)
     return [f'{got} of {want} {what}' for what, (got, want) in have.items() if got < want]
