@@ -127,3 +127,17 @@ def test_bench_json_reports_rates_and_ratio():
     for key in ('acrobot_steps_per_s_per_core', 'pdip_steps_per_s_per_core',
                 'speedup_vs_numpy'):
         assert got[key] > 0
+
+
+def test_training_bench_measures_whole_runs_alone_and_side_by_side():
+    """``sapga_ros.bench.training`` (``sapga bench --training``) reports positive rates of
+    SAP-GA runs and of Q-learning alone and side by side, and their ratio."""
+    from sapga_ros.bench.training import QL_ROWS, SAPGA_ROWS, run_training_bench
+    d = run_training_bench(steps=60_000, lanes=3)
+    assert d['lanes'] == 3
+    for problem, _ in SAPGA_ROWS:
+        assert d[f'sapga_{problem}_steps_per_s'] > 0
+    for problem, _ in QL_ROWS:
+        alone, lanes = d[f'ql_{problem}_alone_steps_per_s'], d[f'ql_{problem}_lanes_steps_per_s']
+        assert alone > 0 and lanes > 0
+        assert d[f'ql_{problem}_lanes_speedup'] == pytest.approx(lanes / alone)

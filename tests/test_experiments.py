@@ -162,3 +162,44 @@ def test_sapga_limit_reports_and_writes_its_sequence(tmp_path, capsys):
     stored = json.loads((tmp_path / 'l.json').read_text())
     assert shown['delta'] == stored['delta'] and len(stored['actions']) == stored['step']
     assert cli.main(['limit', '--problem', 'acrobot', '--alternative-goal']) == 2
+
+
+def test_q_learning_seeds_run_side_by_side_equal_their_runs_alone(tmp_path):
+    """With one worker a Q-learning row's seeds learn side by side in one job; with as many
+    workers as seeds each runs alone.  The run files are the same but for timing."""
+    quiet = {'only': [1, 3], 'seeds': 3, 'scale': 0.002, 'log': lambda *a: None}
+    run_experiments('table2', tmp_path / 'lanes', workers=1, **quiet)
+    run_experiments('table2', tmp_path / 'alone', workers=3, **quiet)
+    for row in (1, 3):
+        for seed in range(3):
+            name = f'runs/{row}-seed{seed}.json'
+            lanes = json.loads((tmp_path / 'lanes' / name).read_text())
+            alone = json.loads((tmp_path / 'alone' / name).read_text())
+            assert (lanes['run'].pop('lanes'), alone['run'].pop('lanes')) == (3, 1)
+            for doc in (lanes, alone):
+                del doc['run']['seconds'], doc['run']['final']['steps_per_s']
+            assert lanes == alone
+            assert len(lanes['run']['steps']) > 0
+
+
+def test_jobs_group_q_learning_seeds_into_lanes_and_run_longest_first():
+    """Every pending run is in exactly one job; a Q-learning row's seeds make groups of at
+    most LANE_BLOCK, at least one per worker while seeds last; other runs are jobs alone."""
+    from sapga_ros.optim.qlearner import LANE_BLOCK
+    from sapga_ros.training.experiments import plan_jobs
+    exps = {e.id: e for e in load_experiments('table2')[0]}
+    pending = [(exps[i], s, exps[i].steps) for i in (1, 2, 3, 4) for s in range(20)]
+    for workers in (1, 2, 5, 64):
+        jobs = plan_jobs(pending, workers)
+        runs = sorted((e.id, s) for e, seeds, _ in jobs for s in seeds)
+        assert runs == sorted((e.id, s) for e, s, _ in pending)
+        for exp, seeds, budget in jobs:
+            if exp.method == 'ql':
+                assert 1 <= len(seeds) <= LANE_BLOCK
+            else:
+                assert len(seeds) == 1
+        groups = [len(seeds) for e, seeds, _ in jobs if e.id == 1]
+        assert len(groups) == max(-(-20 // LANE_BLOCK), min(20, workers))
+        assert max(groups) - min(groups) <= 1
+        costs = [budget * len(seeds) for _, seeds, budget in jobs]
+        assert costs == sorted(costs, reverse=True)

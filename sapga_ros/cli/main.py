@@ -5,7 +5,7 @@
                 [--style S] [--pop N] [--children N] [--l-min N] [--l-max N] ...
     sapga eval POLICY [--delta D] [--max-steps N] [--json]
     sapga exemplars POLICY [--json] [--plot OUT.png] [--prune-unused OUT.json]
-    sapga bench [--json] [--ros [--problem P]]
+    sapga bench [--json] [--ros [--problem P]] [--style S] [--training]
     sapga inspect BAG [--json] [--plot OUT.png] [--episode N]
     sapga bag reindex BAG
     sapga experiment NAME --out DIR [--only 2,4] [--seeds N] [--scale F] [--workers W]
@@ -76,6 +76,9 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument('--problem', default='acrobot', help='with --ros: the problem')
     b.add_argument('--style', choices=(*STYLES, 'all'),
                    help='batch evaluation speed of this exemplar style (or all)')
+    b.add_argument('--training', action='store_true',
+                   help='instead: whole training runs, SAP-GA and Q-learning (alone and '
+                        'seeds side by side), MDP steps/s (sapga_ros.bench.training)')
 
     add_inspect_arguments(sub.add_parser(
         'inspect', help='summarise (and plot) a recording: a bag directory or an MCAP file'))
@@ -156,6 +159,8 @@ def cmd_bench(args) -> int:
         return bench_ros(['--problem', args.problem, '--processes'])
     if args.style:
         return _bench_styles(args)
+    if args.training:
+        return _bench_training(args)
     from sapga_ros.bench.batch import run_bench
     result = run_bench()
     if args.json:
@@ -166,6 +171,24 @@ def cmd_bench(args) -> int:
               f"core, {d['steps_per_s_all_cores'] / 1e6:6.3f} M steps/s on {d['threads']} "
               f"threads; NumPy loop: {d['numpy_steps_per_s']:8.0f} steps/s; speedup per core "
               f"{d['speedup_vs_numpy']:6.0f}x")
+    return 0
+
+
+def _bench_training(args) -> int:
+    from sapga_ros.bench.training import QL_ROWS, SAPGA_ROWS, run_training_bench
+    d = run_training_bench()
+    if args.json:
+        print(json.dumps(d))
+        return 0
+    for problem, delta in SAPGA_ROWS:
+        print(f'SAP-GA {problem:11s} delta {delta}: '
+              f"{d[f'sapga_{problem}_steps_per_s'] / 1e6:6.3f} M steps/s (one thread, "
+              f"whole run of {d['steps_per_run']:,} steps)")
+    for problem, delta in QL_ROWS:
+        print(f'QL     {problem:11s} delta {delta}: '
+              f"{d[f'ql_{problem}_alone_steps_per_s'] / 1e6:6.3f} M steps/s alone, "
+              f"{d[f'ql_{problem}_lanes_steps_per_s'] / 1e6:6.3f} M with {d['lanes']} seeds "
+              f"side by side ({d[f'ql_{problem}_lanes_speedup']:.2f}x)")
     return 0
 
 

@@ -23,6 +23,10 @@ from sim_nodes.models import model_id
 from sim_nodes.problem import Problem
 
 GAMMA = 1.0                                # discount (SPEC 3.4)
+# The model kernels' lane loops vectorise in blocks of 8 columns (4 doubles x 2 unrolled,
+# AVX2): measured with step_lanes on the acrobot, 8 or 16 columns run 8-9 M lane-steps/s,
+# 10 or 12 only 3.4-4.5 M (the remainder runs scalar); spare columns cost less.
+LANE_BLOCK = 8
 
 
 @dataclass(frozen=True)
@@ -44,6 +48,12 @@ def seed_state(seed: int) -> np.ndarray:
     z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & 0xFFFFFFFFFFFFFFFF
     z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & 0xFFFFFFFFFFFFFFFF
     return np.array([(z ^ (z >> 31)) or 1], dtype=np.uint64)
+
+
+def lane_width(lanes: int) -> int:
+    """Columns of the model step for ``lanes`` side-by-side runs: one alone, else the lanes
+    rounded up to a multiple of ``LANE_BLOCK``."""
+    return lanes if lanes == 1 else -(-lanes // LANE_BLOCK) * LANE_BLOCK
 
 
 class QLearning(Optimizer):
@@ -70,8 +80,8 @@ class QLearning(Optimizer):
                         tiles, *goal_arrays(pr), pr.is_angle, delta, pr.n_step,
                         pr.ql_epsilon, pr.ql_eta, GAMMA, *alt_goal_arrays(pr))
         self._alt = pr.goal_alt_scale is not None
-        n = params.chunk_steps                 # an episode has at least one step
-        self._episodes = (np.empty(n), np.empty(n, np.int64), np.empty(n), np.empty(n))
+        self._lanes_key = (pr.name, model_id(pr.model), delta, pr.goal_alt_scale)
+        self._learnt: tuple | None = None      # a chunk learnt by ``learn_together``
 
     @classmethod
     def create(cls, problem: Problem, params: QlParams, seed: int, delta: float,
@@ -82,11 +92,12 @@ class QLearning(Optimizer):
                    np.zeros(cells, dtype=np.bool_), seed_state(seed))
 
     def ask(self) -> list:
-        """Learn from the next chunk of episodes; nothing is left to evaluate."""
-        ep_r, ep_s, ep_d, ep_alt = self._episodes
-        budget = min(self.params.chunk_steps, self.budget - self._steps)
-        done, n_ep = learn(self._model, self.q, self.visited, self.rng,
-                           *self._consts, budget, ep_r, ep_s, ep_d, ep_alt)
+        """Learn from the next chunk of episodes (unless ``learn_together`` did already);
+        nothing is left to evaluate."""
+        if self._learnt is None:
+            learn_together([self])
+        done, n_ep, ep_r, ep_d, ep_alt = self._learnt
+        self._learnt = None
         self._steps += int(done)
         self.episodes += int(n_ep)
         if n_ep:
@@ -133,6 +144,8 @@ class QLearning(Optimizer):
         return {'epsilon': problem.ql_epsilon, 'eta': problem.ql_eta}
 
     def state_dict(self) -> State:
+        if self._learnt is not None:
+            raise RuntimeError('a chunk is learnt but not yet taken by ask()')
         return ({**self.counters(), 'chunks': self.chunks},
                 {'q': self.q, 'visited': self.visited, 'rng': self.rng})
 
@@ -159,3 +172,36 @@ class QLearning(Optimizer):
                 rng.shape != (1,) or rng.dtype != np.uint64 or not rng[0]:
             raise CheckpointError('visited marks or generator state of the wrong form')
         return cls(problem, params, delta, budget, q, visited, rng, counters)
+
+
+def learn_together(opts: list[QLearning]) -> None:
+    """Learn the next chunk of every run in ``opts`` in one call of the ``learn`` kernel,
+    the runs side by side as lanes (the model steps them together, vectorised); each
+    run's next ``ask()`` takes its chunk.  The runs must share the problem and goal; what
+    each learns is bit-identical to learning alone."""
+    first = opts[0]
+    if any(o._lanes_key != first._lanes_key for o in opts):
+        raise ValueError('runs learnt together must share the problem and the goal')
+    if any(o._learnt is not None for o in opts):
+        raise RuntimeError('a run already holds a learnt chunk')
+    lanes = len(opts)
+    if lanes == 1:                             # the run's own arrays, in place
+        q, visited, rng = first.q[None], first.visited[None], first.rng
+    else:
+        q = np.stack([o.q for o in opts])
+        visited = np.stack([o.visited for o in opts])
+        rng = np.concatenate([o.rng for o in opts])
+    budget = np.array([min(o.params.chunk_steps, o.budget - o.steps) for o in opts])
+    n = max(1, int(budget.max()))              # an episode has at least one step
+    ep = (np.empty((lanes, n)), np.empty((lanes, n), np.int64), np.empty((lanes, n)),
+          np.empty((lanes, n)))
+    done = np.zeros(lanes, np.int64)
+    n_ep = np.zeros(lanes, np.int64)
+    learn(first._model, q, visited, rng, *first._consts, budget, *ep, lane_width(lanes),
+          done, n_ep)
+    for k, o in enumerate(opts):
+        if lanes > 1:
+            o.q[...] = q[k]
+            o.visited[...] = visited[k]
+            o.rng[...] = rng[k:k + 1]
+        o._learnt = (done[k], n_ep[k], ep[0][k], ep[2][k], ep[3][k])

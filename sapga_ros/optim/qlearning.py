@@ -73,64 +73,98 @@ def greedy(q, cell):
 @kernel
 def learn(model, q, visited, rng, s0, p, actions, idx, low, width, tiles, best, inv_scale,
           fixed, is_angle, delta, n_step, epsilon, eta, gamma, alt_inv_scale, alt_fixed,
-          budget, ep_return, ep_steps, ep_dstar, ep_dstar_alt):
-    """Run whole episodes of model number ``model`` until ``budget`` steps are spent.
+          budget, ep_return, ep_steps, ep_dstar, ep_dstar_alt, width_lanes, done, n_ep):
+    """Run whole episodes of model number ``model`` in each lane k until ``budget[k]`` steps
+    are spent (or ``ep_return[k]`` is full): lane k learns its own table ``q[k]``
+    (``visited[k]``, generator word ``rng[k]``) and no lane reads another's.
 
-    Per-episode measures go into the ep_* arrays (``ep_dstar_alt``: delta* under the
-    alternative goal reading, if alt_inv_scale is not empty).  Returns (steps simulated,
-    episodes run).
+    The lanes' states step side by side in one ``step_lanes`` call of ``width_lanes``
+    columns (>= the lane count: the spare columns only fill the model's vector loop), so a
+    lane's run is bit-identical to the same run alone.  Per-episode measures go into row k
+    of the ep_* arrays (``ep_dstar_alt``: delta* under the alternative goal reading, if
+    alt_inv_scale is not empty); ``done[k]``, ``n_ep[k]``: steps simulated, episodes run.
     """
+    lanes = q.shape[0]
     dim = s0.shape[0]
-    S = np.empty((dim, 1))
-    a_buf = np.zeros(1)
-    r_buf = np.zeros(1)
     n_act = actions.shape[0]
     alt = alt_inv_scale.shape[0] > 0
-    steps = 0
-    episodes = 0
-    while steps < budget and episodes < ep_return.shape[0]:
-        S[:, 0] = s0
-        s = S[:, 0]
-        cell = cell_index(s, idx, low, width, tiles)
-        total = 0.0
-        dstar = goal_delta(s, best, inv_scale, fixed, is_angle)
-        dstar_alt = math.inf
-        if alt:
-            dstar_alt = goal_delta(s, best, alt_inv_scale, alt_fixed, is_angle)
-        t = 0
-        while t < n_step:
-            if xorshift_uniform(rng) < epsilon:
-                a = min(int(xorshift_uniform(rng) * n_act), n_act - 1)
+    S = np.empty((dim, width_lanes))
+    for k in range(width_lanes):
+        S[:, k] = s0
+    a_buf = np.zeros(width_lanes)
+    r_buf = np.zeros(width_lanes)
+    cell = np.zeros(lanes, np.int64)
+    act = np.zeros(lanes, np.int64)
+    total = np.zeros(lanes)
+    dstar = np.zeros(lanes)
+    dstar_alt = np.full(lanes, math.inf)
+    t = np.zeros(lanes, np.int64)
+    active = np.zeros(lanes, np.bool_)
+    running = 0
+    for k in range(lanes):
+        done[k] = 0
+        n_ep[k] = 0
+        if budget[k] > 0 and ep_return.shape[1] > 0:
+            active[k] = True
+            running += 1
+    starting = active.copy()
+    while running > 0:
+        for k in range(lanes):
+            s = S[:, k]
+            if not active[k]:                  # finished: idles at the initial state
+                s[:] = s0
+                continue
+            if starting[k]:                    # a new episode from the initial state
+                starting[k] = False
+                s[:] = s0
+                cell[k] = cell_index(s, idx, low, width, tiles)
+                total[k] = 0.0
+                t[k] = 0
+                dstar[k] = goal_delta(s, best, inv_scale, fixed, is_angle)
+                if alt:
+                    dstar_alt[k] = goal_delta(s, best, alt_inv_scale, alt_fixed, is_angle)
+            g = rng[k:k + 1]
+            if xorshift_uniform(g) < epsilon:
+                act[k] = min(int(xorshift_uniform(g) * n_act), n_act - 1)
             else:
-                a = greedy(q, cell)
-            a_buf[0] = actions[a]
-            step_lanes(model, S, a_buf, p, 1, r_buf)
-            r = r_buf[0]
-            total += r
-            t += 1
+                act[k] = greedy(q[k], cell[k])
+            a_buf[k] = actions[act[k]]
+        step_lanes(model, S, a_buf, p, width_lanes, r_buf)
+        for k in range(lanes):
+            if not active[k]:
+                continue
+            s = S[:, k]
+            r = r_buf[k]
+            total[k] += r
+            t[k] += 1
             d = goal_delta(s, best, inv_scale, fixed, is_angle)
-            if d < dstar:
-                dstar = d
+            if d < dstar[k]:
+                dstar[k] = d
             if alt:
                 d_alt = goal_delta(s, best, alt_inv_scale, alt_fixed, is_angle)
-                if d_alt < dstar_alt:
-                    dstar_alt = d_alt
+                if d_alt < dstar_alt[k]:
+                    dstar_alt[k] = d_alt
             nxt = cell_index(s, idx, low, width, tiles)
+            qk = q[k]
             target = r
             if d > delta:                      # not terminal: bootstrap
-                target += gamma * q[nxt, greedy(q, nxt)]
-            q[cell, a] += eta * (target - q[cell, a])
-            visited[cell] = True
-            cell = nxt
-            if d <= delta:
-                break
-        ep_return[episodes] = total
-        ep_steps[episodes] = t
-        ep_dstar[episodes] = dstar
-        ep_dstar_alt[episodes] = dstar_alt
-        episodes += 1
-        steps += t
-    return steps, episodes
+                target += gamma * qk[nxt, greedy(qk, nxt)]
+            c, a = cell[k], act[k]
+            qk[c, a] += eta * (target - qk[c, a])
+            visited[k, c] = True
+            cell[k] = nxt
+            if d <= delta or t[k] >= n_step:   # the episode ends
+                e = n_ep[k]
+                ep_return[k, e] = total[k]
+                ep_steps[k, e] = t[k]
+                ep_dstar[k, e] = dstar[k]
+                ep_dstar_alt[k, e] = dstar_alt[k]
+                n_ep[k] = e + 1
+                done[k] += t[k]
+                starting[k] = True
+                if done[k] >= budget[k] or n_ep[k] >= ep_return.shape[1]:
+                    active[k] = False
+                    running -= 1
 
 
 @kernel

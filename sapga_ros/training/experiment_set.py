@@ -143,33 +143,51 @@ def load_experiments(name: str) -> tuple[list[Experiment], int]:
     return exps, _count(doc.get('seeds', 20), f'{path}: seeds', 1, MAX_SEEDS)
 
 
-def run_one(exp: Experiment, seed: int, steps: int) -> dict:
-    """Train one run of ``exp`` with ``seed`` on ``steps`` (one evaluation thread): its log,
-    final measures and best policy (exemplar policies: the policy file's JSON document)."""
+def run_seeds(exp: Experiment, seeds: list[int], steps: int) -> list[dict]:
+    """Train the runs of ``exp`` with ``seeds`` on ``steps`` each (one evaluation thread):
+    each run's log, final measures and best policy (exemplar policies: the policy file's
+    JSON document).  Q-learning runs of several seeds learn side by side
+    (``training.loop.train_lanes``), each bit-identical to its run alone: their
+    ``steps_per_s`` is the lanes' MDP steps per second together (the worker's rate) and
+    their ``seconds`` a share of the wall time in proportion to their steps."""
     from sapga_ros.evaluation.evaluator import set_jobs
+    from sapga_ros.optim.sapga import SapgaParams
+    from sapga_ros.training.loop import TrainConfig, train, train_lanes
     start = time.perf_counter()
     if exp.method == 'cmaes':
         from sapga_ros.optim.cmaes import train_cmaes
         set_jobs(1)
-        policy, hist = train_cmaes(exp.problem, exp.delta, steps, seed, popsize=CMAES_POP)
+        done = [train_cmaes(exp.problem, exp.delta, steps, seed, popsize=CMAES_POP)
+                for seed in seeds]
     else:
-        from sapga_ros.optim.sapga import SapgaParams
-        from sapga_ros.training.loop import TrainConfig, train
-        cfg = TrainConfig(problem=exp.problem, method=exp.method, delta=exp.delta,
-                          steps=steps, seed=seed, jobs=1,
-                          params=SapgaParams(style=exp.style, variant=exp.variant))
-        result = train(cfg)
-        policy, hist = result.policy, result.history
+        configs = [TrainConfig(problem=exp.problem, method=exp.method, delta=exp.delta,
+                               steps=steps, seed=seed, jobs=1,
+                               params=SapgaParams(style=exp.style, variant=exp.variant))
+                   for seed in seeds]
+        if exp.method == 'ql' and len(configs) > 1:
+            results = train_lanes(configs)
+        else:
+            results = [train(c) for c in configs]
+        done = [(r.policy, r.history) for r in results]
+    wall = max(time.perf_counter() - start, 1e-9)
+    total = sum(hist[-1]['steps'] for _, hist in done)
+    return [_run(exp, seed, policy, hist, wall, total, len(seeds))
+            for seed, (policy, hist) in zip(seeds, done)]
+
+
+def _run(exp: Experiment, seed: int, policy: Any, hist: list[dict], wall: float, total: int,
+         lanes: int) -> dict:
+    """The record of one run trained with ``lanes - 1`` others in ``wall`` seconds, the
+    runs together simulating ``total`` MDP steps."""
     last = hist[-1]
     final = {'best_value': last['best_value'], 'delta_star': last['delta_star'],
-             'achieved': last['delta_star'] <= exp.delta,
-             'steps_per_s': last['steps'] / max(time.perf_counter() - start, 1e-9)}
+             'achieved': last['delta_star'] <= exp.delta, 'steps_per_s': total / wall}
     if last.get('delta_star_alt') is not None:
         final['delta_star_alt'] = last['delta_star_alt']
     run = {'seed': seed, 'steps': [r['steps'] for r in hist],
            'best_value': [r['best_value'] for r in hist],
            'delta_star': [r['delta_star'] for r in hist], 'final': final,
-           'seconds': time.perf_counter() - start}
+           'seconds': wall * last['steps'] / max(total, 1), 'lanes': lanes}
     if exp.method == 'ql':
         final['greedy_delta_star'] = policy.meta.get('delta_star')
         final['greedy_value'] = policy.meta.get('value')

@@ -25,7 +25,8 @@ from sapga_ros.io.atomic import write_atomic
 from sapga_ros.io.bounded import read_bounded
 from sapga_ros.training.experiment_report import markdown_table, plot_summaries, summarise
 from sapga_ros.training.experiment_set import (Experiment, LimitSearch, load_experiments,
-                                               load_limits, run_one)
+                                               load_limits, run_seeds)
+from sapga_ros.optim.qlearner import LANE_BLOCK
 
 MAX_RUN_BYTES = 64 << 20
 
@@ -58,9 +59,34 @@ def _finished(path: Path, key: dict) -> dict | None:
     return doc['run']
 
 
-def _job(args: tuple) -> tuple[tuple, dict]:
-    exp, seed, budget = args
-    return args, run_one(exp, seed, budget)
+def _job(args: tuple) -> list[tuple[tuple, dict]]:
+    """((experiment, seed, budget), run) of each seed of a job (experiment, seeds, budget)."""
+    exp, seeds, budget = args
+    return [((exp, seed, budget), run)
+            for seed, run in zip(seeds, run_seeds(exp, list(seeds), budget))]
+
+
+def plan_jobs(pending: list[tuple], workers: int) -> list[tuple]:
+    """The jobs (experiment, seeds, budget) of the pending runs (experiment, seed, budget),
+    longest first.  A Q-learning row's seeds are grouped to learn side by side (at most
+    ``LANE_BLOCK`` lanes; as many groups as workers while seeds last); any other run is a
+    job of its own."""
+    rows: dict[tuple, list[int]] = {}
+    jobs = []
+    for exp, seed, budget in pending:
+        if exp.method == 'ql':
+            rows.setdefault((exp, budget), []).append(seed)
+        else:
+            jobs.append((exp, (seed,), budget))
+    for (exp, budget), seeds in rows.items():
+        groups = min(len(seeds), max(-(-len(seeds) // LANE_BLOCK), workers))
+        size, extra = divmod(len(seeds), groups)
+        at = 0
+        for g in range(groups):
+            n = size + (g < extra)
+            jobs.append((exp, tuple(seeds[at:at + n]), budget))
+            at += n
+    return sorted(jobs, key=lambda job: -job[2] * len(job[1]))
 
 
 class _Progress:
@@ -127,13 +153,15 @@ def run_experiments(name: str, out: str | os.PathLike, only: list[int] | None = 
     started = time.perf_counter()
     reused = len(runs)
     progress = _Progress(len(runs) + len(pending), len(runs), log)
+    workers = workers or os.cpu_count() or 1
     try:
-        for (exp, seed, budget), run in _execute(pending, workers or os.cpu_count() or 1,
-                                                 backend, address):
-            key = run_key(name, exp, seed, budget)
-            write_atomic(run_path(out, exp, seed), json.dumps({'key': key, 'run': run}))
-            runs[exp.id, seed] = run
-            progress.step(f"#{exp.id} seed {seed}: delta* {run['final']['delta_star']:.4f}")
+        for finished in _execute(plan_jobs(pending, workers), workers, backend, address):
+            for (exp, seed, budget), run in finished:
+                key = run_key(name, exp, seed, budget)
+                write_atomic(run_path(out, exp, seed), json.dumps({'key': key, 'run': run}))
+                runs[exp.id, seed] = run
+                progress.step(f'#{exp.id} seed {seed}: delta* '
+                              f"{run['final']['delta_star']:.4f}")
     finally:
         progress.close()
     for search in load_limits(name):
@@ -173,8 +201,8 @@ def _limit(out: Path, search: LimitSearch, scale: float, log) -> None:
 
 def _execute(jobs: list[tuple], workers: int, backend: str = 'local',
              address: str | None = None):
-    """(job, run) for each job as it finishes: in worker processes (``local``; here, for
-    one worker) or as tasks of a Ray cluster (``ray``)."""
+    """Each job's [(run, result)] as the job finishes: in worker processes (``local``;
+    here, for one worker) or as tasks of a Ray cluster (``ray``)."""
     if backend == 'ray':
         yield from _execute_ray(jobs, workers, address)
         return

@@ -21,7 +21,7 @@ import math
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Generator
 
 import numpy as np
 
@@ -31,7 +31,7 @@ from sapga_ros.evaluation.evaluator import Evaluator, set_jobs
 from sapga_ros.exemplars.policy import ExemplarPolicy
 from sapga_ros.io.atomic import write_atomic
 from sapga_ros.optim.base import Optimizer
-from sapga_ros.optim.qlearner import QLearning, QlParams
+from sapga_ros.optim.qlearner import QLearning, QlParams, learn_together
 from sapga_ros.optim.sapga import SapGA, SapgaParams
 from sapga_ros.optim.settings import check, setting
 from sapga_ros.training import checkpoints
@@ -145,6 +145,49 @@ def train(config: TrainConfig, initial: list[ExemplarPolicy] = (),
     the end (the caller writes the end's); the run ends early, with its best so far, once
     ``should_stop()`` is true.
     """
+    rounds = _rounds(config, initial, progress, on_best, should_stop, on_save)
+    while True:
+        try:
+            next(rounds)
+        except StopIteration as end:
+            return end.value
+
+
+def train_lanes(configs: list[TrainConfig]) -> list[TrainResult]:
+    """Q-learning runs of one problem and goal (e.g. the seeds of an experiment row),
+    each as ``train(config)`` would run it, bit for bit, but learnt side by side: before
+    each round, every run still going learns its next chunk in one ``learn_together``
+    call (lanes of one vectorised model step)."""
+    if any(c.method != 'ql' for c in configs):
+        raise ConfigError('only Q-learning runs learn side by side')
+    runs = [_rounds(c) for c in configs]
+    going: dict[int, QLearning] = {}
+    results: dict[int, TrainResult] = {}
+
+    def advance(i: int) -> None:
+        try:
+            going[i] = next(runs[i])
+        except StopIteration as end:
+            going.pop(i, None)
+            results[i] = end.value
+
+    for i in range(len(runs)):
+        advance(i)
+    while going:
+        learn_together(list(going.values()))
+        for i in list(going):
+            advance(i)
+    return [results[i] for i in range(len(runs))]
+
+
+def _rounds(config: TrainConfig, initial: list[ExemplarPolicy] = (),
+            progress: Progress | None = None,
+            on_best: Callable[[Any], None] | None = None,
+            should_stop: Callable[[], bool] | None = None,
+            on_save: Callable[[Any, list[dict]], None] | None = None
+            ) -> Generator[Optimizer, None, TrainResult]:
+    """``train`` as a generator: it yields the optimizer before each round (a caller may
+    prepare the round, as ``train_lanes`` does) and returns the ``TrainResult``."""
     problem = load_problem(config.problem)
     delta = float(problem.default_delta if config.delta is None else config.delta)
     jobs = set_jobs(config.jobs)
@@ -158,6 +201,7 @@ def train(config: TrainConfig, initial: list[ExemplarPolicy] = (),
         if should_stop and should_stop():
             reasons = {'should_stop': True}
             break
+        yield opt
         best_before = opt.best
         results, alt = _evaluate(evaluator, opt.ask())
         opt.tell(*results)

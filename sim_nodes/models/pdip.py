@@ -46,7 +46,7 @@ def mdp_step_lanes(S, force, p, n, reward):
     """
     dt, g = p[DT], p[G]
     m0, m1, m2, l1, l2 = p[M0], p[M1], p[M2], p[L1], p[L2]
-    x_max, v_max, w_max = p[X_MAX], p[V_MAX], p[W_MAX]
+    x_max, v_max, w_max, rail = p[X_MAX], p[V_MAX], p[W_MAX], p[RAIL]
     for k in range(n):
         reward[k] = 0.0
     for _ in range(int(p[SUBSTEPS])):
@@ -72,7 +72,10 @@ def mdp_step_lanes(S, force, p, n, reward):
             hit = xc != x
             S[0, k] = xc
             S[1, k] = 0.0 if hit else clip(v, -v_max, v_max)
-            reward[k] = p[RAIL] if hit else reward[k]  # rail penalty once per MDP step
+            # rail penalty once per MDP step: reward[k] is 0 or rail, and becomes rail on a
+            # hit.  Stored unconditionally: the masked store of ``rail if hit else
+            # reward[k]`` kept the loop from vectorising (5 M vs 24 M lane-steps/s)
+            reward[k] += (rail - reward[k]) * hit
     for k in range(n):
         reward[k] += sin(S[2, k]) + sin(S[3, k]) - 3.0  # pole heights - 3 (+ penalty)
 

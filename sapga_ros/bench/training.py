@@ -1,0 +1,49 @@
+"""``sapga bench --training``: end-to-end training speed, whole runs through the one
+training loop (``training.loop``) on one evaluation thread.
+
+* SAP-GA: MDP steps per second of a whole ``train`` run (evaluation, selection, operators,
+  logging), the paper's settings, on the acrobot and the PDIP.
+* Q-learning: MDP steps per second of one run alone, and of ``LANE_BLOCK`` runs (seeds)
+  learnt side by side (``train_lanes``, as the experiments run a Q-learning row), on the
+  acrobot (row #1) and the single pendulum (row #3), and the ratio of the two measured in
+  the same process.  The runs side by side are bit-identical to the runs alone (tested).
+
+Numbers only: nothing here asserts a time.
+"""
+from __future__ import annotations
+
+import time
+
+from sapga_ros.optim.qlearner import LANE_BLOCK
+from sapga_ros.training.loop import TrainConfig, train, train_lanes
+
+QL_ROWS = (('acrobot', 0.1), ('pdip_single', 0.01))
+SAPGA_ROWS = (('acrobot', 0.02), ('pdip', 0.01))
+
+
+def _rate(run, configs) -> float:
+    """MDP steps per second of ``run(configs)`` (a list of TrainResults)."""
+    start = time.perf_counter()
+    results = run(configs)
+    return sum(r.stats['steps'] for r in results) / (time.perf_counter() - start)
+
+
+def run_training_bench(steps: int = 2_000_000, lanes: int = LANE_BLOCK) -> dict:
+    """Steps/s of SAP-GA and of Q-learning alone and side by side (each after a short
+    warm-up run that compiles the kernels)."""
+    out = {'lanes': lanes, 'steps_per_run': steps}
+    for problem, delta in SAPGA_ROWS:
+        cfg = TrainConfig(problem=problem, method='sapga', delta=delta, steps=steps, jobs=1)
+        train(TrainConfig(problem=problem, method='sapga', delta=delta, steps=20_000, jobs=1))
+        out[f'sapga_{problem}_steps_per_s'] = _rate(lambda c: [train(c[0])], [cfg])
+    for problem, delta in QL_ROWS:
+        def config(seed: int, budget: int = steps) -> TrainConfig:
+            return TrainConfig(problem=problem, method='ql', delta=delta, steps=budget,
+                               seed=seed)
+        train_lanes([config(s, 20_000) for s in range(2)])      # compile
+        alone = _rate(lambda c: [train(c[0])], [config(0)])
+        together = _rate(train_lanes, [config(s) for s in range(lanes)])
+        out[f'ql_{problem}_alone_steps_per_s'] = alone
+        out[f'ql_{problem}_lanes_steps_per_s'] = together
+        out[f'ql_{problem}_lanes_speedup'] = together / alone
+    return out
