@@ -90,7 +90,15 @@ def test_a_reset_with_a_command_in_flight_never_steps_the_new_episode_with_it(ro
 
 def test_resets_during_a_running_policy_never_mix_episodes(ros, tmp_path, acrobot):
     """A policy node answering a lockstep simulator, reset again and again mid-episode:
-    every episode's states are the start of the offline episode, exactly."""
+    each reset starts the next episode, and the states split into the episodes exactly:
+    every episode's states are the start of the offline episode, its end event counts them,
+    none is missing, none is another episode's.
+
+    No auto_reset, so that the 12 resets alone start episodes: on a slow machine an episode
+    can reach its 400 steps between two resets, and would then start one more episode by
+    itself; here it waits for the reset instead (the waits below take that end for 'a few
+    steps').  The last episode runs to its end, so nothing more comes after it and the
+    states and events compared are all of the run's."""
     rng = np.random.default_rng(4)
     policy = ExemplarPolicy(acrobot, rng.uniform(acrobot.low, acrobot.high, (60, 4)),
                             rng.integers(0, 3, 60))
@@ -100,7 +108,7 @@ def test_resets_during_a_running_policy_never_mix_episodes(ros, tmp_path, acrobo
     probe = ros.start(Probe, problem=acrobot)
     pol = ros.start(PolicyNode)
     sim = ros.start(SimNode, params={'mode': 'lockstep', 'delta': 0.0, 'markers': False,
-                                     'republish_period': 0.05})
+                                     'republish_period': 0.05, 'auto_reset': False})
     ros.wait_for(lambda: sim._stamped_sub.get_publisher_count() == 2
                  and sim._state_pub.get_subscription_count() == 2, 'discovery')
     # the policy once everything is matched: its first answer is not lost
@@ -109,19 +117,28 @@ def test_resets_during_a_running_policy_never_mix_episodes(ros, tmp_path, acrobo
     ros.wait_for(lambda: len(probe.states) > 3, 'the loop running')
     for k in range(12):
         before = len(probe.states)
-        ros.wait_for(lambda: len(probe.states) > before + 5 + k, 'a few steps')
-        assert ros.call(probe.reset, Trigger.Request()).success
-    ros.wait_for(lambda: probe.event('start', 13) and len(probe.states) > 10, 'the last start')
+        ros.wait_for(lambda: len(probe.states) > before + 5 + k or probe.end_of(k + 1),
+                     'a few steps (or the end of the episode)')
+        answer = ros.call(probe.reset, Trigger.Request())
+        assert answer.success and answer.message == f'episode {k + 2} started'
+    last = ros.wait_for(lambda: probe.end_of(13), 'the end of the last episode')
+    final = round(last['time'] * 1e9)
+    ros.wait_for(lambda: final in probe.states, 'the last state')
     with probe.lock:
-        starts = [round(e['time'] * 1e9) for e in probe.events if e['event'] == 'start']
+        events = list(probe.events)
         states = dict(probe.states)
-    episodes = 0
-    for begin, end in zip(starts, starts[1:] + [max(states) + TICK_NS]):
+    starts = [round(e['time'] * 1e9) for e in events if e['event'] == 'start']
+    assert [e['episode'] for e in events if e['event'] == 'start'] == list(range(1, 14))
+    assert max(states) == final
+    for episode, (begin, end) in enumerate(zip(starts, starts[1:] + [final + TICK_NS]), 1):
         got = [layout.from_msg(states[t]) for t in range(begin, end, TICK_NS) if t in states]
         assert len(got) == (end - begin) // TICK_NS, 'a state missing'
         assert np.array_equal(np.array(got), offline.states[:len(got)])
-        episodes += 1
-    assert episodes == 13 and sim.commands.ignored == 0
+        ended = [e for e in events if e['episode'] == episode and e['event'] != 'start']
+        assert len(ended) == 1 and ended[0]['step'] == len(got) - 1, ended
+        assert ended[0]['event'] == ('reset' if len(got) < len(offline.states) else
+                                     'step_limit')
+    assert sim.commands.ignored == 0
 
 
 def test_realtime_applies_the_latest_command_and_counts_late_ones(ros, acrobot):
