@@ -36,6 +36,7 @@ test: $(STAMP)
 bench: $(STAMP)
 	$(VENV)/bin/sapga bench
 	$(VENV)/bin/sapga bench --ros
+	$(VENV)/bin/sapga bench --training
 
 clean:
 	rm -rf $(VENV) .cache build install log *.egg-info $(OUT)
