@@ -166,6 +166,27 @@ def cdr_string(data: bytes) -> str | None:
         return None
 
 
+def first_marker(data: bytes) -> tuple[str, int] | None:
+    """(ns, header.stamp [ns]) of the first marker of a CDR visualization_msgs/MarkerArray,
+    or None if it has none or is malformed."""
+    if len(data) < 24:
+        return None
+    order = '<' if data[1] & 1 else '>'
+    count, sec, nanosec, frame_len = struct.unpack_from(order + 'IiII', data, 4)
+    at = 20 + frame_len                         # after header.frame_id
+    at += -(at - 4) % 4                         # CDR alignment of ns's length (from byte 4)
+    if count < 1 or sec < 0 or at + 4 > len(data):
+        return None
+    (ns_len,) = struct.unpack_from(order + 'I', data, at)
+    if ns_len < 1 or at + 4 + ns_len > len(data):
+        return None
+    try:
+        ns = data[at + 4:at + 3 + ns_len].decode('utf-8')
+    except UnicodeDecodeError:
+        return None
+    return ns, sec * 1_000_000_000 + nanosec
+
+
 def publish_time_ns(type_name: str, data: bytes, source_ns: int | None, receive_ns: int) -> int:
     """MCAP publish_time: header.stamp if the type has one, else source time, else receive."""
     try:
