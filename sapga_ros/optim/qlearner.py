@@ -23,9 +23,9 @@ from sim_nodes.models import model_id
 from sim_nodes.problem import Problem
 
 GAMMA = 1.0                                # discount (SPEC 3.4)
-# The model kernels' lane loops vectorise in blocks of 8 columns (4 doubles x 2 unrolled,
-# AVX2): measured with step_lanes on the acrobot, 8 or 16 columns run 8-9 M lane-steps/s,
-# 10 or 12 only 3.4-4.5 M (the remainder runs scalar); spare columns cost less.
+# The model kernels' lane loops vectorise in blocks of 8 columns (8 doubles: AVX-512 on
+# this machine).  Measured with step_lanes on the acrobot: 8 or 16 columns run 8-9 M
+# lane-steps/s, 10 or 12 only 3.4-4.5 M (the remainder runs scalar); spare columns cost less.
 LANE_BLOCK = 8
 
 
