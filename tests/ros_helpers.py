@@ -79,6 +79,14 @@ def _die_with_parent() -> None:
         pass
 
 
+def new_node(make: Callable[..., Any], context: Any, params: dict[str, Any] | None = None,
+             **kwargs: Any) -> Any:
+    """A node made by ``make`` (a node class or factory) in ``context``, ``params`` as its
+    parameter overrides."""
+    overrides = [Parameter(k, value=v) for k, v in (params or {}).items()]
+    return make(context=context, parameter_overrides=overrides, **kwargs)
+
+
 def executable(name: str) -> Path:
     """Where ``ros2 run sapga_ros <name>`` finds it, else the console script of this venv."""
     try:
@@ -120,8 +128,7 @@ class RosHarness:
     def start(self, cls: Callable[..., Node], params: dict[str, Any] | None = None,
               **kwargs: Any) -> Any:
         """Make a node of class ``cls`` in this domain with parameter overrides; spin it."""
-        overrides = [Parameter(k, value=v) for k, v in (params or {}).items()]
-        node = cls(context=self.context, parameter_overrides=overrides, **kwargs)
+        node = new_node(cls, self.context, params, **kwargs)
         self.nodes.append(node)
         self.executor.add_node(node)
         return node

@@ -13,12 +13,11 @@ import numpy as np
 import pytest
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
-from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float64, String
 from std_srvs.srv import Trigger
 
-from ros_helpers import PROBE_QOS, Probe, free_domain_id
+from ros_helpers import PROBE_QOS, Probe, free_domain_id, new_node
 from sapga_ros.exemplars.policy import ExemplarPolicy
 from sapga_ros.nodes.policy_node import PolicyNode
 from sapga_ros.nodes.recorder_node import RecorderNode
@@ -46,8 +45,7 @@ class Guarded:
 
     def add(self, make: Callable[..., Any], params: dict[str, Any] | None = None,
             **kwargs: Any) -> Any:
-        overrides = [Parameter(k, value=v) for k, v in (params or {}).items()]
-        node = make(context=self.context, parameter_overrides=overrides, **kwargs)
+        node = new_node(make, self.context, params, **kwargs)
         self.nodes.append(node)
         self.executor.add_node(node)
         return node

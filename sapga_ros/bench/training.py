@@ -13,18 +13,19 @@ Numbers only: nothing here asserts a time.
 from __future__ import annotations
 
 import time
+from typing import Callable
 
 from sapga_ros.optim.qlearner import LANE_BLOCK
-from sapga_ros.training.loop import TrainConfig, train, train_lanes
+from sapga_ros.training.loop import TrainConfig, TrainResult, train, train_lanes
 
 QL_ROWS = (('acrobot', 0.1), ('pdip_single', 0.01))
 SAPGA_ROWS = (('acrobot', 0.02), ('pdip', 0.01))
 
 
-def _rate(run, configs) -> float:
-    """MDP steps per second of ``run(configs)`` (a list of TrainResults)."""
+def _rate(run: Callable[[], list[TrainResult]]) -> float:
+    """MDP steps per second of the training runs ``run()`` makes."""
     start = time.perf_counter()
-    results = run(configs)
+    results = run()
     return sum(r.stats['steps'] for r in results) / (time.perf_counter() - start)
 
 
@@ -33,16 +34,18 @@ def run_training_bench(steps: int = 2_000_000, lanes: int = LANE_BLOCK) -> dict:
     warm-up run that compiles the kernels)."""
     out = {'lanes': lanes, 'steps_per_run': steps}
     for problem, delta in SAPGA_ROWS:
-        cfg = TrainConfig(problem=problem, method='sapga', delta=delta, steps=steps, jobs=1)
-        train(TrainConfig(problem=problem, method='sapga', delta=delta, steps=20_000, jobs=1))
-        out[f'sapga_{problem}_steps_per_s'] = _rate(lambda c: [train(c[0])], [cfg])
+        def sapga(budget: int) -> TrainConfig:
+            return TrainConfig(problem=problem, method='sapga', delta=delta, steps=budget,
+                               jobs=1)
+        train(sapga(20_000))                                    # compile
+        out[f'sapga_{problem}_steps_per_s'] = _rate(lambda: [train(sapga(steps))])
     for problem, delta in QL_ROWS:
-        def config(seed: int, budget: int = steps) -> TrainConfig:
+        def ql(seed: int, budget: int = steps) -> TrainConfig:
             return TrainConfig(problem=problem, method='ql', delta=delta, steps=budget,
                                seed=seed)
-        train_lanes([config(s, 20_000) for s in range(2)])      # compile
-        alone = _rate(lambda c: [train(c[0])], [config(0)])
-        together = _rate(train_lanes, [config(s) for s in range(lanes)])
+        train_lanes([ql(s, 20_000) for s in range(2)])          # compile
+        alone = _rate(lambda: [train(ql(0))])
+        together = _rate(lambda: train_lanes([ql(s) for s in range(lanes)]))
         out[f'ql_{problem}_alone_steps_per_s'] = alone
         out[f'ql_{problem}_lanes_steps_per_s'] = together
         out[f'ql_{problem}_lanes_speedup'] = together / alone

@@ -80,7 +80,7 @@ class QLearning(Optimizer):
                         tiles, *goal_arrays(pr), pr.is_angle, delta, pr.n_step,
                         pr.ql_epsilon, pr.ql_eta, GAMMA, *alt_goal_arrays(pr))
         self._alt = pr.goal_alt_scale is not None
-        self._lanes_key = (pr.name, model_id(pr.model), delta, pr.goal_alt_scale)
+        self._lanes_key = (pr.name, delta, pr.goal_alt_scale)
         self._learnt: tuple | None = None      # a chunk learnt by ``learn_together``
 
     @classmethod
