@@ -116,6 +116,12 @@ class Problem:
     ros: dict[str, Any] = field(default_factory=dict, compare=False)
     source: str = ''
 
+    def resolve(self, name: str, given: Any = None) -> Any:
+        """The value of parameter ``name`` (``delta``, ``n_step``): ``given``, or the
+        problem's if not given (None) -- the one place that rule is written."""
+        default = {'delta': float(self.default_delta), 'n_step': int(self.n_step)}[name]
+        return default if given is None else type(default)(given)
+
     @property
     def dim(self) -> int:
         """D, the state dimension."""

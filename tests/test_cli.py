@@ -86,7 +86,8 @@ def test_ql_training_writes_an_evaluable_table(tmp_path):
 @pytest.mark.parametrize('args, needle', [
     (['train', '--problem', 'nope'], "unknown problem 'nope'"),
     (['train', '--problem', 'acrobot', '--steps', '-5'], 'positive integer'),
-    (['train', '--problem', 'acrobot', '--delta', 'nan'], 'finite delta'),
+    (['train', '--problem', 'acrobot', '--delta', 'nan'],
+     'delta: expected a number in [0, 1e9], got nan'),
     (['eval', 'missing.json'], 'cannot read'),
     (['train', '--problem', 'acrobot', '--resume'], 'no checkpoint to resume from'),
     (['train', '--resume'], '--resume needs --checkpoint DIR'),

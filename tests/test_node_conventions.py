@@ -18,7 +18,6 @@ from sapga_ros.nodes.recorder_node import RecorderNode
 from sapga_ros.nodes.recorder_params import PARAMETERS as RECORDER_PARAMETERS
 from sim_nodes.models import MODELS
 from sim_nodes.models.registry import sim_executable
-from sim_nodes.ros.params import range_text
 from sim_nodes.ros.sim_node import SimNode
 from sim_nodes.ros.sim_settings import sim_parameters
 from test_executables import ros2_run_path
@@ -105,6 +104,21 @@ def test_a_help_inside_ros_args_is_not_the_executables(tmp_path):
     assert len(lines) == 1 and lines[0].startswith('policy_node: error: '), lines
 
 
+def range_text(d) -> str:
+    """A descriptor's range as --help writes it, read independently of the declarations:
+    '[low, high]' (integers whole; 1e9 for powers of ten from 1e7), the choices, or ''."""
+    def number(x: float) -> str:
+        if not float(x).is_integer():
+            return f'{x:g}'
+        digits = str(abs(int(x)))
+        return f'1e{len(digits) - 1}' if len(digits) > 6 and digits.strip('0') == '1' \
+            else str(int(x))
+    ranges = list(d.integer_range) + list(d.floating_point_range)
+    if ranges:
+        return f'[{number(ranges[0].from_value)}, {number(ranges[0].to_value)}]'
+    return d.additional_constraints.removeprefix('one of: ')
+
+
 def describe(ros, client_node, node_name: str, names: list[str]) -> dict:
     client = client_node.create_client(DescribeParameters, f'/{node_name}/describe_parameters')
     response = ros.call(client, DescribeParameters.Request(names=names))
@@ -124,15 +138,15 @@ def test_numeric_parameters_declare_their_ranges_over_describe_parameters(ros, t
         got = describe(ros, client_node, node_name, [p.name for p in table])
         for p in table:
             d = got[p.name]
-            assert d.name == p.name and d.description == p.help, p.name
+            assert d.name == p.name and d.description == p.text, p.name
             assert d.read_only == p.read_only, p.name
             if d.type in NUMERIC:
                 ranges = list(d.integer_range) + list(d.floating_point_range)
                 assert len(ranges) == 1, f'{node_name} {p.name}: no range declared'
-                assert (ranges[0].from_value, ranges[0].to_value) == (p.low, p.high)
+                assert (ranges[0].from_value, ranges[0].to_value) == p.bounds()
             if p.choices:
                 assert d.additional_constraints == f'one of: {", ".join(p.choices)}'
-    numeric = [p for table in tables.values() for p in table if p.kind in (int, float)]
+    numeric = [p for table in tables.values() for p in table if p.type in (int, float)]
     assert len(numeric) == 11 and all(p.low is not None for p in numeric)
 
 

@@ -1,9 +1,10 @@
-"""Settings written once (sapga_ros/optim/settings.py): the config dataclasses' defaults are
-what ``sapga train`` offers, what the trainer node declares and what its parameter file
-lists; bounds and choices are enforced alike on every side."""
+"""Settings written once (sim_nodes/params.py): the config dataclasses' defaults are what
+``sapga train`` offers, what the trainer node declares and what its parameter file lists;
+bounds and choices are enforced alike on every side."""
 from __future__ import annotations
 
 import math
+from dataclasses import fields
 
 import numpy as np
 import pytest
@@ -16,12 +17,11 @@ from sapga_ros.cli.train import train_config
 from sapga_ros.errors import ConfigError
 from sapga_ros.exemplars.styles import STYLES
 from sapga_ros.nodes.trainer_node import TrainerNode
-from sapga_ros.nodes.trainer_params import NodeSettings, parameters
+from sapga_ros.nodes.trainer_params import PARAMETERS, NodeSettings
 from sapga_ros.optim.qlearner import QlParams
 from sapga_ros.optim.sapga import SapgaParams
-from sapga_ros.optim.settings import described
 from sapga_ros.training.loop import TrainConfig, train_sapga
-from sim_nodes.problem import config_dir
+from sim_nodes.problem import config_dir, load_problem
 
 RUN = (TrainConfig, SapgaParams, QlParams)
 
@@ -38,7 +38,8 @@ def _yaml() -> dict:
 
 
 def _defaults(*classes) -> dict:
-    return {f.name: f.default for cls in classes for f, _ in described(cls)}
+    """name -> the field's default (None: the problem's) of every declared parameter."""
+    return {f.name: f.default for cls in classes for f in fields(cls) if 'param' in f.metadata}
 
 
 def test_cli_defaults_are_the_dataclass_defaults():
@@ -63,22 +64,30 @@ def test_cli_options_set_every_setting():
 
 
 @pytest.mark.parametrize('argv, needle', [
-    (['--pop', '1'], 'expected an integer in [2, 1000000]'),
-    (['--chunk-steps', '10'], 'expected an integer in [1000, 10000000]'),
-    (['--seed', '-1'], 'expected an integer >= 0'),
-    (['--style', 'telepathy'], 'invalid choice'),
+    (['--pop', '1'], 'n_pop: expected an integer in [2, 1e6], got 1'),
+    (['--chunk-steps', '10'], 'chunk_steps: expected an integer in [1000, 1e7], got 10'),
+    (['--seed', '-1'], 'seed: expected an integer >= 0, got -1'),
+    (['--style', 'telepathy'], "style: expected one of state-action, via-point, "
+                               "state-value, state-state, state-action-value, got 'telepathy'"),
+    (['--delta', '-3'], 'delta: expected a number in [0, 1e9], got -3.0'),
 ])
 def test_cli_refuses_values_outside_the_bounds(argv, needle, capsys):
-    """A value outside a field's bounds is a usage error naming what is expected."""
+    """A value outside a field's bounds is a usage error: its last line is the
+    declaration's one line."""
     with pytest.raises(SystemExit) as exit_:
         build_parser().parse_args(['train', '--problem', 'acrobot', *argv])
-    assert exit_.value.code == 2 and needle in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and err.splitlines()[-1] == f'sapga train: error: {needle}'
+
 
 
 def test_dataclasses_refuse_values_outside_the_bounds():
     """Constructing a config out of bounds is a ConfigError naming the field."""
     for make, name in [(lambda: TrainConfig(steps=0), 'steps'),
-                       (lambda: TrainConfig(method='cmaes'), 'method'),
+                       (lambda: TrainConfig(method='telepathy'), 'method'),
+                       (lambda: TrainConfig(delta=math.nan), 'delta'),
+                       (lambda: TrainConfig(delta=-3.0), 'delta'),
+                       (lambda: TrainConfig(delta=True), 'delta'),
                        (lambda: SapgaParams(n_pop=1), 'n_pop'),
                        (lambda: SapgaParams(style='telepathy'), 'style'),
                        (lambda: SapgaParams(l_min=30, l_max=20), 'l_min'),
@@ -89,14 +98,16 @@ def test_dataclasses_refuse_values_outside_the_bounds():
 
 def test_parameter_file_lists_every_parameter_with_its_default():
     """msg_configs/params/trainer_node.yaml holds each declared parameter at the default the
-    dataclasses give (and problem, delta, checkpoint at the node's own defaults)."""
+    dataclasses give (and problem, checkpoint at the node's own defaults); delta, the
+    problem's unless given, is not listed."""
     listed = _yaml()
-    declared = {name: default for name, (default, _) in parameters().items()}
-    assert set(listed) == set(declared) | {'problem'}
+    declared = {p.name: p.default for p in PARAMETERS if not p.from_problem}
+    assert set(listed) == set(declared)
+    assert {p.name for p in PARAMETERS if p.from_problem} == {'delta'}
     for name, default in declared.items():
         assert listed[name] == default, name
-    assert {k: declared[k] for k in _defaults(*RUN, NodeSettings)} == \
-        _defaults(*RUN, NodeSettings)
+    assert {k: declared[k] for k in _defaults(*RUN, NodeSettings) if k != 'delta'} == \
+        {k: v for k, v in _defaults(*RUN, NodeSettings).items() if k != 'delta'}
 
 
 def test_node_declares_the_dataclass_defaults_with_ranges(ros):
@@ -104,7 +115,8 @@ def test_node_declares_the_dataclass_defaults_with_ranges(ros):
     bounds as descriptor ranges and the choices named; its config is the default one."""
     node = ros.start(TrainerNode)
     for name, default in _defaults(*RUN, NodeSettings).items():
-        assert node.get_parameter(name).value == default, name
+        expected = load_problem('acrobot').default_delta if name == 'delta' else default
+        assert node.get_parameter(name).value == expected, name
     for name, value in _yaml().items():
         assert node.get_parameter(name).value == value, name
     n_pop = node.describe_parameter('n_pop')
@@ -115,7 +127,7 @@ def test_node_declares_the_dataclass_defaults_with_ranges(ros):
     period = node.describe_parameter('log_period').floating_point_range[0]
     assert (period.from_value, period.to_value) == (1e-3, 3600.0)
     config = node.train_config()
-    assert config == TrainConfig(problem='acrobot', delta=config.delta)
+    assert config == TrainConfig(problem='acrobot', delta=load_problem('acrobot').default_delta)
 
 
 def test_node_style_is_validated_and_applies_to_the_next_run(ros):

@@ -23,8 +23,7 @@ from typing import Sequence
 
 from sapga_ros.errors import SapgaError
 from sapga_ros.launch import LaunchError, Supervisor, exit_code
-from sapga_ros.launch.swingup import finite_number, positive_int
-from sapga_ros.launch.train_deploy import run_train_deploy, summary_lines
+from sapga_ros.launch.train_deploy import add_run_arguments, run_train_deploy, summary_lines
 from sim_nodes.problem import load_problem
 
 PROBLEM = 'acrobot'
@@ -37,13 +36,7 @@ def build_parser() -> argparse.ArgumentParser:
         '\n\n')[0], formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument('--out', default='out', metavar='DIR',
                    help='policy, checkpoint, recording and plot go here (default out)')
-    p.add_argument('--steps', type=positive_int, default=STEPS, metavar='N',
-                   help=f'training budget in MDP steps (default {STEPS})')
-    p.add_argument('--seed', type=int, default=0, metavar='S', help='random seed (default 0)')
-    p.add_argument('--delta', type=finite_number(0.0), default=DELTA, metavar='D',
-                   help=f'goal difficulty (default {DELTA})')
-    p.add_argument('--jobs', type=int, default=0, metavar='J',
-                   help='evaluation threads (default 0: every core)')
+    add_run_arguments(p, steps=STEPS, delta=DELTA)
     return p
 
 

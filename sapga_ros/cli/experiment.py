@@ -14,7 +14,7 @@ import json
 from dataclasses import asdict
 from pathlib import Path
 
-from sapga_ros.cli.args import delta_value, nonneg_int, positive_int
+from sapga_ros.cli.args import nonneg_int, nonneg_number, positive_int
 from sapga_ros.errors import SapgaError
 
 
@@ -26,7 +26,7 @@ def add_experiment_arguments(ex: argparse.ArgumentParser) -> None:
     ex.add_argument('--only', help='comma-separated experiment ids, e.g. 2,4')
     ex.add_argument('--seeds', type=positive_int, help='seeds per experiment (default: the '
                                                        'set\'s, 20 for table2)')
-    ex.add_argument('--scale', type=delta_value, default=1.0,
+    ex.add_argument('--scale', type=nonneg_number, default=1.0,
                     help='multiply every step budget (e.g. 0.1 for a quick look)')
     ex.add_argument('--workers', type=nonneg_int, default=0,
                     help='parallel runs (default 0: every core)')

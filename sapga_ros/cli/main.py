@@ -25,11 +25,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 from pathlib import Path
 
-from sapga_ros.cli.args import check_output_file, delta_value, episode_steps
+from sapga_ros.cli.args import add_param, check_output_file, episode_steps
 from sapga_ros.cli.experiment import (add_experiment_arguments, add_limit_arguments,
                                       cmd_experiment, cmd_limit)
 from sapga_ros.cli.recordings import (add_bag_arguments, add_inspect_arguments, cmd_bag,
@@ -39,8 +38,10 @@ from sapga_ros import package_version
 from sapga_ros.errors import SapgaError
 from sapga_ros.exemplars.styles import STYLES
 from sapga_ros.launch.prefix import ensure_ament_prefix
+from sim_nodes.params import DELTA
 
 EXIT_USAGE = 2
+POLICY_DELTA = "goal difficulty (default: the policy's training delta, else the problem's)"
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -54,15 +55,13 @@ def build_parser() -> argparse.ArgumentParser:
 
     e = sub.add_parser('eval', help='run a policy\'s episode from the initial state')
     e.add_argument('policy', help='policy file (sapga-policy/1 or sapga-qtable/1)')
-    e.add_argument('--delta', type=delta_value,
-                   help='goal difficulty (default: the policy\'s training delta, else the '
-                        'problem\'s)')
+    add_param(e, DELTA, help=POLICY_DELTA)
     e.add_argument('--max-steps', type=episode_steps, help='N_step (default: the problem\'s)')
     e.add_argument('--json', action='store_true', help='print one JSON object')
 
     x = sub.add_parser('exemplars', help='list, plot or prune a policy\'s exemplars')
     x.add_argument('policy')
-    x.add_argument('--delta', type=delta_value)
+    add_param(x, DELTA, help=POLICY_DELTA)
     x.add_argument('--json', action='store_true', help='print the list as JSON')
     x.add_argument('--plot', metavar='OUT.png', help='draw exemplars and the trajectory')
     x.add_argument('--prune-unused', metavar='OUT.json',
@@ -95,19 +94,11 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _eval_delta(args, policy) -> float:
-    if args.delta is not None:
-        return args.delta
-    meta_delta = policy.meta.get('delta') if isinstance(policy.meta, dict) else None
-    if isinstance(meta_delta, (int, float)) and math.isfinite(meta_delta) and meta_delta >= 0:
-        return float(meta_delta)
-    return policy.problem.default_delta
-
-
 def cmd_eval(args) -> int:
-    from sapga_ros.evaluation.any_policy import load_any_policy, run_policy_episode
+    from sapga_ros.evaluation.any_policy import (load_any_policy, policy_delta,
+                                                 run_policy_episode)
     policy = load_any_policy(args.policy)
-    delta = _eval_delta(args, policy)
+    delta = policy_delta(policy, args.delta)
     ep = run_policy_episode(policy, delta, args.max_steps)
     if args.json:
         print(json.dumps(ep.summary()))
@@ -119,13 +110,13 @@ def cmd_eval(args) -> int:
 
 
 def cmd_exemplars(args) -> int:
-    from sapga_ros.evaluation.any_policy import run_policy_episode
+    from sapga_ros.evaluation.any_policy import policy_delta, run_policy_episode
     import numpy as np
 
     from sapga_ros.exemplars.tools import exemplar_table, format_table
     from sapga_ros.exemplars.policy import load_policy
     policy = load_policy(args.policy)
-    delta = _eval_delta(args, policy)
+    delta = policy_delta(policy, args.delta)
     ep = run_policy_episode(policy, delta)
     reported = ep.exemplars[ep.exemplars >= 0]
     counts = np.bincount(reported, minlength=len(policy))

@@ -1,8 +1,8 @@
 """``sapga train``: one training run (SAP-GA or the Q-learning baseline) from the command line.
 
-Its options are the run's files (``--problem``, ``--delta``, ``--out``, ``--checkpoint``,
-``--init``, ``--quiet``) and, generated from the config dataclasses (``TrainConfig``,
-``SapgaParams``, ``QlParams``; defaults, help and bounds written there), the run's settings;
+Its options are the run's files (``--problem``, ``--out``, ``--checkpoint``, ``--init``,
+``--quiet``) and, generated from the config dataclasses (``TrainConfig``, ``SapgaParams``,
+``QlParams``; defaults, help and bounds declared there), the run's settings;
 ``train_plan.py`` turns them into a run and its files (``--resume``: the checkpoint's
 settings).  The best policy so far, the log and the checkpoint are saved at least every
 ``--checkpoint-seconds`` (30 s), so a killed run loses at most that.  Ctrl-C or SIGTERM
@@ -16,13 +16,13 @@ import signal
 import sys
 import time
 
-from sapga_ros.cli.args import add_settings, delta_value
+from sapga_ros.cli.args import add_settings
 from sapga_ros.cli.train_plan import plan
 from sapga_ros.errors import SapgaError
 from sapga_ros.optim.qlearner import QlParams
 from sapga_ros.optim.sapga import SapgaParams
-from sapga_ros.optim.settings import build
 from sapga_ros.training.loop import TrainConfig
+from sim_nodes.params import build
 
 SETTINGS = (TrainConfig, SapgaParams, QlParams)
 SIGNALS = {signal.SIGINT: 'Ctrl-C', signal.SIGTERM: 'SIGTERM'}
@@ -31,7 +31,6 @@ SIGNALS = {signal.SIGINT: 'Ctrl-C', signal.SIGTERM: 'SIGTERM'}
 def add_train_arguments(t: argparse.ArgumentParser) -> None:
     t.add_argument('--problem', help='problem name (msg_configs/<name>.yaml); required but '
                                      'with --resume, which takes the checkpoint\'s')
-    t.add_argument('--delta', type=delta_value, help='goal difficulty (default: the problem\'s)')
     t.add_argument('--out', help='policy file to write, in an existing folder (default runs/'
                                  '<problem>-<method>-seed<seed>.json); the log goes beside it '
                                  'as .log.csv')
@@ -51,9 +50,8 @@ def train_config(args: argparse.Namespace, problem: str) -> TrainConfig:
     """The run the parsed options describe, without reading a checkpoint (``plan`` is what
     ``sapga train`` runs)."""
     value = lambda name: getattr(args, name)  # noqa: E731
-    return build(TrainConfig, value, problem=problem, delta=args.delta,
-                 checkpoint=args.checkpoint, params=build(SapgaParams, value),
-                 ql=build(QlParams, value))
+    return build(TrainConfig, value, problem=problem, checkpoint=args.checkpoint,
+                 params=build(SapgaParams, value), ql=build(QlParams, value))
 
 
 class _Progress:

@@ -16,7 +16,6 @@ else the one beside ``--out``, else the one beside the default ``--out`` of ``--
 from __future__ import annotations
 
 import argparse
-import math
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Callable
@@ -26,9 +25,9 @@ from sapga_ros.errors import CheckpointError, ConfigError, SapgaError
 from sapga_ros.io.checkpoint import load_checkpoint_meta
 from sapga_ros.optim.qlearner import QlParams
 from sapga_ros.optim.sapga import SapgaParams
-from sapga_ros.optim.settings import build
 from sapga_ros.training.checkpoints import flat
 from sapga_ros.training.loop import TrainConfig
+from sim_nodes.params import DELTA, build
 
 RUNS = Path('runs')            # the default policy file's folder
 
@@ -57,20 +56,19 @@ def plan(args: argparse.Namespace) -> Plan:
     cannot work); reads the checkpoint's settings with ``--resume``."""
     given = set(getattr(args, 'given', ()))
     value: Callable[[str], Any] = lambda name: getattr(args, name)  # noqa: E731
-    problem, delta = args.problem, args.delta
+    problem = args.problem
     checkpoint = Path(args.checkpoint) if args.checkpoint else None
     if args.resume:
         checkpoint = checkpoint or _resumed_checkpoint(args)
         saved = _saved_settings(checkpoint)
         problem = problem or saved.get('problem')
-        delta = delta if delta is not None else saved.get('delta')
         value = lambda name: (getattr(args, name) if name in given  # noqa: E731
                               or name not in saved else saved[name])
     elif not problem:
         raise SapgaError('--problem is required (only --resume takes it from the checkpoint)')
     try:
-        config = build(TrainConfig, value, problem=problem, delta=delta,
-                       params=build(SapgaParams, value), ql=build(QlParams, value))
+        config = build(TrainConfig, value, problem=problem, params=build(SapgaParams, value),
+                       ql=build(QlParams, value))
     except (ConfigError, TypeError) as exc:
         if not args.resume:
             raise
@@ -107,9 +105,7 @@ def _saved_settings(checkpoint: Path) -> dict[str, Any]:
     saved = {**flat(meta['run']), **settings}
     if not isinstance(saved.get('problem'), str):
         raise CheckpointError(f'{checkpoint}: the checkpoint names no problem')
-    delta = saved.get('delta')
-    if isinstance(delta, bool) or not isinstance(delta, (int, float)) or \
-            not math.isfinite(delta) or delta < 0:
-        raise CheckpointError(f'{checkpoint}: the checkpoint\'s delta {delta!r} is not a '
-                              'finite number >= 0'[:200])
+    reason = DELTA.reason(saved.get('delta'))
+    if reason:
+        raise CheckpointError(f'{checkpoint}: the checkpoint\'s {reason}'[:300])
     return saved

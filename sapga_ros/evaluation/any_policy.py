@@ -1,11 +1,13 @@
 """Any policy file the package writes: an exemplar policy (sapga-policy/1) or a
-Q-learning table (sapga-qtable/1), loaded and run for one recorded episode."""
+Q-learning table (sapga-qtable/1), loaded and run for one recorded episode at the delta
+``policy_delta`` gives."""
 from __future__ import annotations
 
 from pathlib import Path
 
 from sapga_ros.errors import SapgaError
 from sapga_ros.io.bounded import open_regular, read_bounded
+from sim_nodes.params import DELTA
 
 
 def load_any_policy(path: str):
@@ -36,3 +38,13 @@ def run_policy_episode(policy, delta: float, max_steps: int | None = None):
     if isinstance(policy, QTable):
         return policy.episode(delta, max_steps)
     return Evaluator(policy.problem, delta, max_steps).episode(policy)
+
+
+def policy_delta(policy, given: float | None = None) -> float:
+    """The delta a policy's episode runs at: ``given``, else the policy's training delta
+    (``meta.delta``, if a valid delta), else the problem's (``sapga eval`` and the launches
+    alike)."""
+    if given is None:
+        meta = policy.meta.get('delta') if isinstance(policy.meta, dict) else None
+        given = meta if DELTA.reason(meta) is None else None
+    return policy.problem.resolve('delta', given)

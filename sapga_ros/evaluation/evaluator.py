@@ -67,8 +67,8 @@ class Evaluator:
     def __init__(self, problem: Problem, delta: float | None = None,
                  n_step: int | None = None) -> None:
         self.problem = problem
-        self.delta = float(problem.default_delta if delta is None else delta)
-        self.n_step = int(problem.n_step if n_step is None else n_step)
+        self.delta = problem.resolve('delta', delta)
+        self.n_step = problem.resolve('n_step', n_step)
         self.model = model_id(problem.model)
         self.params = problem.params()
         self.ranges = problem.ranges

@@ -38,6 +38,7 @@ from gymnasium.error import InvalidAction, ResetNeeded
 from sapga_ros.errors import ConfigError
 from sim_nodes.goal import goal_arrays, goal_delta
 from sim_nodes.models import model_module
+from sim_nodes.params import DELTA, N_STEP, reason_of
 from sim_nodes.problem import Problem, load_problem
 
 
@@ -52,12 +53,12 @@ class ProblemEnv(gymnasium.Env[np.ndarray, np.int64]):
                  n_step: int | None = None, render_mode: str | None = None) -> None:
         self.problem = load_problem(problem) if isinstance(problem, str) else problem
         p = self.problem
-        self.delta = float(p.default_delta if delta is None else delta)
-        self.n_step = int(p.n_step if n_step is None else n_step)
-        if not self.delta >= 0.0:
-            raise ConfigError(f'{p.name}: delta must be a number >= 0, got {delta!r}')
-        if self.n_step < 1 or (n_step is not None and self.n_step != n_step):
-            raise ConfigError(f'{p.name}: n_step must be an integer >= 1, got {n_step!r}')
+        for q, value in ((DELTA, delta), (N_STEP, n_step)):
+            reason = reason_of(q, q.coerce(value))
+            if reason:
+                raise ConfigError(f'{p.name}: {reason}')
+        self.delta = p.resolve('delta', delta)
+        self.n_step = p.resolve('n_step', n_step)
         if render_mode is not None:
             raise ConfigError(f'{p.name}: no render modes, got {render_mode!r}')
         self.render_mode = render_mode

@@ -33,21 +33,22 @@ The stack (``stack.py``) and the launch's own node (``launch_node.py``) are shar
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 import tempfile
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Sequence
 
 from sapga_ros.launch import Supervisor, launch_main
 from sapga_ros.launch.launch_node import LaunchRos
 from sapga_ros.launch.ros_args import RosOptions, add_ros_arguments
 from sapga_ros.launch.stack import (DeployStack, StackOptions, episode_lines,  # noqa: F401
                                     event_summary, offline_episode, same_episode)
+from sapga_ros.evaluation.any_policy import policy_delta
+from sim_nodes.options import add_param
+from sim_nodes.params import DELTA
 from sim_nodes.problem import load_problem
-
-MODES = ('lockstep', 'realtime')
+from sim_nodes.ros.sim_settings import sim_parameters
 
 
 # the swingup launch -------------------------------------------------------------------------
@@ -74,48 +75,24 @@ def positive_int(text: str) -> int:
     return value
 
 
-def finite_number(low: float, strict: bool = False):
-    """argparse type: a finite number >= low (> low if ``strict``)."""
-    def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            value = math.nan
-        if not math.isfinite(value) or value < low or (strict and value == low):
-            raise argparse.ArgumentTypeError(f'expected a finite number '
-                                             f'{">" if strict else ">="} {low:g}, got {text!r}')
-        return value
-    return parse
-
-
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog='sapga launch swingup',
                                 description='Run a policy file on the simulator and record '
                                             'the episodes to MCAP.')
-    p.add_argument('--policy', required=True, metavar='FILE', help='policy file (SPEC 3.3)')
+    sim = {q.name: q for q in sim_parameters('acrobot')}
+    p.add_argument('--policy', required=True, metavar='FILE', help='policy file')
     p.add_argument('--out', required=True, metavar='DIR', help='directory of the recording')
-    p.add_argument('--mode', choices=MODES, default='lockstep',
-                   help='lockstep (default; equals sapga eval) or realtime')
+    add_param(p, replace(sim['mode'], default='lockstep'),
+              help='lockstep (default; equals sapga eval) or realtime')
     p.add_argument('--episodes', type=positive_int, default=1, metavar='N',
                    help='episodes (default 1)')
     p.add_argument('--problem', help="problem (default: the policy file's; must match it)")
-    p.add_argument('--delta', type=finite_number(0.0), help=(
-        "goal difficulty (default: the policy's training delta, else the problem's)"))
-    p.add_argument('--real-time-factor', type=finite_number(0.0, strict=True), default=1.0,
-                   metavar='F', help='realtime mode: sim time / wall time (default 1)')
+    add_param(p, DELTA, help="goal difficulty (default: the policy's training delta, else "
+                             "the problem's)")
+    add_param(p, sim['real_time_factor'], help='realtime mode: sim time / wall time '
+                                               '(default 1)')
     add_ros_arguments(p)
     return p
-
-
-def policy_delta(policy: Any, given: float | None) -> float:
-    """``given``, else the policy's training delta, else the problem's default."""
-    if given is not None:
-        return float(given)
-    meta = policy.meta.get('delta') if isinstance(policy.meta, dict) else None
-    if isinstance(meta, (int, float)) and not isinstance(meta, bool) and \
-            math.isfinite(meta) and meta >= 0:
-        return float(meta)
-    return float(policy.problem.default_delta)
 
 
 def run_swingup(args: argparse.Namespace, sup: Supervisor) -> SwingupResult:

@@ -22,15 +22,17 @@ from __future__ import annotations
 import argparse
 import sys
 import tempfile
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Sequence
 
 from sapga_ros.launch import LaunchError, Supervisor, launch_main
 from sapga_ros.launch.ros_args import RosOptions, add_ros_arguments
 from sapga_ros.launch.swingup import (DeployStack, LaunchRos, StackOptions, episode_lines,
-                                      event_summary, finite_number, offline_episode,
-                                      positive_int, same_episode)
+                                      event_summary, offline_episode, same_episode)
+from sapga_ros.training.loop import TrainConfig
+from sim_nodes.options import add_param
+from sim_nodes.params import declared
 from sim_nodes.problem import load_problem
 
 TRAIN_TIMEOUT_S = None   # training takes as long as its budget: no limit (Ctrl-C stops it)
@@ -58,25 +60,24 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--out', required=True, metavar='DIR',
                    help='directory of the policy, checkpoint and recording')
     p.add_argument('--problem', default='acrobot', help='problem (default acrobot)')
-    p.add_argument('--steps', type=positive_int, default=30_000_000, metavar='N',
-                   help='training budget in MDP steps (default 30000000)')
-    p.add_argument('--seed', type=int, default=0, metavar='S', help='random seed (default 0)')
-    p.add_argument('--delta', type=finite_number(0.0),
-                   help="goal difficulty (default: the problem's)")
-    p.add_argument('--jobs', type=int, default=0, metavar='J',
-                   help='evaluation threads of the trainer (default 0: every core)')
+    add_run_arguments(p)
     add_ros_arguments(p)
     return p
+
+
+def add_run_arguments(p: argparse.ArgumentParser, **defaults: Any) -> None:
+    """--steps, --seed, --delta, --jobs: the trainer's declarations (other ``defaults``)."""
+    for q in declared(TrainConfig):
+        if q.name in ('steps', 'seed', 'delta', 'jobs'):
+            add_param(p, replace(q, default=defaults.get(q.name, q.default)))
 
 
 def run_train_deploy(args: argparse.Namespace, sup: Supervisor) -> TrainDeployResult:
     """The launch itself, under ``sup`` (which stops the nodes whatever happens)."""
     from sapga_ros.exemplars.policy import policy_from_json
-    if args.seed < 0 or args.jobs < 0:
-        raise LaunchError('--seed and --jobs: expected integers >= 0')
     problem = load_problem(args.problem)
     out = Path(args.out).resolve()
-    delta = float(problem.default_delta if args.delta is None else args.delta)
+    delta = problem.resolve('delta', args.delta)
     policy_file = out / 'policy.json'
     opts = StackOptions(problem, out, delta, episodes=1, mode='lockstep')
     sup.say(f'{problem.name}: training {args.steps:,d} steps (seed {args.seed}, delta '

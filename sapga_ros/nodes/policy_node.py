@@ -47,7 +47,7 @@ from sapga_ros.errors import PolicyFileError, SapgaError
 from sapga_ros.exemplars.policy import MAX_POLICY_BYTES, load_policy, policy_from_json
 from sapga_ros.io.bounded import open_regular
 from sapga_ros.nodes.policy_loader import LoadResult, PolicyLoader, PreparedPolicy, fetch_text
-from sapga_ros.nodes.policy_params import PARAMETERS, check_setting, help_rows
+from sapga_ros.nodes.policy_params import PARAMETERS, check_setting
 from sim_nodes.problem import Problem, load_problem
 from sim_nodes.ros.commands import StampedCommand
 from sim_nodes.ros.common import (QUIET_PUBLISHER, THROTTLE_S, JointStateLayout, MessageError,
@@ -278,7 +278,7 @@ class PolicyNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """``ros2 run sapga_ros policy_node``."""
-    return run_node(lambda: PolicyNode(), args, parameters=help_rows, name='policy_node')
+    return run_node(lambda: PolicyNode(), args, parameters=lambda: PARAMETERS, name='policy_node')
 
 
 if __name__ == '__main__':

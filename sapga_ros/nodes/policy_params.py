@@ -1,11 +1,11 @@
 """The policy node's parameters: one table for their declaration with ranges, their checks
-and ``policy_node --help`` (``sim_nodes/ros/params.py``).
+and ``policy_node --help`` (``sim_nodes/params.py``).
 
 ================  ========  ============  ================================================
 name              type      default       meaning
 ================  ========  ============  ================================================
 problem           string    acrobot       msg_configs/<problem>.yaml (read-only)
-policy_file       string    ''            a policy JSON file (SPEC 3.3), loaded at start;
+policy_file       string    ''            a policy JSON file, loaded at start;
                                           setting it loads that file or is refused
 trainer_service   string    get_policy    the trainer's std_srvs/Trigger (read-only)
 load_timeout      double    5.0           [s] wait for the trainer's answer at most
@@ -20,26 +20,22 @@ from __future__ import annotations
 
 from typing import Any
 
+from sim_nodes.params import Param
 from sim_nodes.ros.common import QOS_PROFILES
-from sim_nodes.ros.params import Param, Row, check
+from sim_nodes.ros.params import check
 
 PARAMETERS = (
     Param('problem', 'acrobot', 'msg_configs/<problem>.yaml', read_only=True),
-    Param('policy_file', '', 'policy JSON file (SPEC 3.3) loaded at start; setting it loads '
-          "that file ('' = none)"),
+    Param('policy_file', '', 'policy JSON file loaded at start; setting it loads that file '
+          "('' = none)"),
     Param('trainer_service', 'get_policy', "the trainer's std_srvs/Trigger that load_policy "
           'calls', read_only=True),
-    Param('load_timeout', 5.0, '[s] how long load_policy waits for the trainer', 1e-3,
-          86400.0),
+    Param('load_timeout', 5.0, 'how long load_policy waits for the trainer', 1e-3, 86400.0,
+          unit='s'),
     Param('markers', True, 'publish the exemplar in use as a ghost on markers'),
     Param('qos_profile', 'reliable', 'reliable (the problem ros.qos) | sensor_data (best '
           'effort)', choices=QOS_PROFILES, read_only=True),
 )
-
-
-def help_rows() -> list[Row]:
-    """The rows of ``policy_node --help``."""
-    return [p.row() for p in PARAMETERS]
 
 
 def check_setting(name: str, value: Any) -> str | None:

@@ -36,7 +36,8 @@ flush_period    1.0         [s] close the chunk in progress at least this often 
                             the most a SIGKILL of the recorder can lose
 compression     zstd        ``zstd``, ``lz4`` or ``none`` (MCAP chunk compression)
 queue_depth     1000        subscription history depth (keep_last)
-delta           0.0         goal delta written to the bag metadata (0: the problem default)
+delta           (problem)   goal delta the run uses, written to the bag metadata; default:
+                            the problem's ``episode.delta``
 ==============  ==========  =================================================================
 
 Ctrl-C, SIGTERM and a shutdown of the ROS context finish the bag (summary, footer,
@@ -64,7 +65,7 @@ from rclpy.signals import SignalHandlerOptions
 from std_srvs.srv import Trigger
 
 from sapga_ros.errors import SapgaError
-from sapga_ros.nodes.recorder_params import PARAMETERS, help_rows
+from sapga_ros.nodes.recorder_params import PARAMETERS
 from sapga_ros.nodes.recorder_qos import (adapt_to_offers, describe, incompatible,
                                           offered_profile, role_qos)
 from sapga_ros.recording.events import OPTIONAL_ROLES, ROLE_TYPES
@@ -94,8 +95,9 @@ class RecorderNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('recorder', **kwargs)
-        p = declare(self, PARAMETERS)
+        p = declare(self, PARAMETERS[:1])
         self._problem = load_problem(p['problem'])
+        p.update(declare(self, PARAMETERS[1:], self._problem))
         self._roles = {role: self._resolve(name)
                        for role, name in topic_names(self._problem).items() if role in ROLE_TYPES}
         self._depth = p['queue_depth']
@@ -103,11 +105,10 @@ class RecorderNode(Node):
         name = p['bag'] or f'{self._problem.name}_{utc_stamp()}'
         path = free_bag_path(p['output_dir'], name) if not p['bag'] else \
             self._plain_name(p['output_dir'], p['bag'])
-        delta = p['delta'] if p['delta'] > 0 else self._problem.default_delta
         self._session = RecordingSession(
             path, split=p['split'], event_topic=self._roles['event'],
             chunk_size=p['chunk_size'], compression=p['compression'],
-            metadata={'problem': self._problem.name, 'delta': repr(float(delta)),
+            metadata={'problem': self._problem.name, 'delta': repr(p['delta']),
                       'topics': json.dumps(self._roles, sort_keys=True),
                       'state_names': json.dumps(self._problem.state_names),
                       'node': self.get_fully_qualified_name()})
@@ -303,8 +304,8 @@ def main(args: list[str] | None = None) -> int:
     # callbacks and `finally` finishes the bag.  They chain to the Python handler, which must
     # not raise KeyboardInterrupt in the middle of a write.
     signal.signal(signal.SIGINT, _no_interrupt)
-    return run_node(RecorderNode, args, executor=SingleThreadedExecutor, parameters=help_rows,
-                    name='recorder_node', on_exit=_finishing,
+    return run_node(RecorderNode, args, executor=SingleThreadedExecutor,
+                    parameters=lambda: PARAMETERS, name='recorder_node', on_exit=_finishing,
                     signal_handler_options=SignalHandlerOptions.ALL)
 
 

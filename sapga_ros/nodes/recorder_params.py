@@ -1,5 +1,5 @@
 """The recorder node's parameters: one table for their declaration with ranges, their checks
-and ``recorder_node --help`` (``sim_nodes/ros/params.py``).  All are read-only: restart the
+and ``recorder_node --help`` (``sim_nodes/params.py``).  All are read-only: restart the
 recorder to change one.  The recorder node's docstring explains each.
 """
 from __future__ import annotations
@@ -8,7 +8,7 @@ from dataclasses import replace
 
 from sapga_ros.recording.session import SPLITS
 from sapga_ros.recording.writer import COMPRESSIONS, DEFAULT_CHUNK_SIZE
-from sim_nodes.ros.params import Param, Row
+from sim_nodes.params import DELTA, Param
 
 PARAMETERS = (
     Param('problem', 'acrobot', 'msg_configs/<problem>.yaml: topics, QoS, state layout'),
@@ -17,19 +17,14 @@ PARAMETERS = (
     Param('bag', '', "name of the bag directory ('' = <problem>_<UTC time>); never reused"),
     Param('split', 'run', 'run: one storage file; episode: a new one at each episode start',
           choices=SPLITS),
-    Param('chunk_size', DEFAULT_CHUNK_SIZE, '[bytes] uncompressed MCAP chunk', 1, 1 << 30),
-    Param('flush_period', 1.0, '[s] close the chunk in progress this often (the most a '
-          'SIGKILL loses); 0: by size only', 0.0, 3600.0),
+    Param('chunk_size', DEFAULT_CHUNK_SIZE, 'uncompressed MCAP chunk', 1, 1 << 30,
+          unit='bytes'),
+    Param('flush_period', 1.0, 'close the chunk in progress this often (the most a SIGKILL '
+          'loses); 0: by size only', 0.0, 3600.0, unit='s'),
     Param('compression', 'zstd', 'MCAP chunk compression', choices=tuple(COMPRESSIONS)),
     Param('queue_depth', 1000, 'subscription history depth (keep_last)', 1, 1_000_000),
-    Param('delta', 0.0, 'goal delta written to the bag metadata; 0: the problem default', 0.0,
-          1e9),
+    replace(DELTA, help='goal delta the run uses, written to the bag metadata'),
     Param('topics', [], 'topics to record: name or name:pkg/msg/Type (default: the '
-          "problem's contract topics)", shown="the problem's"),
+          "problem's contract topics)"),
 )
 PARAMETERS = tuple(replace(p, read_only=True) for p in PARAMETERS)
-
-
-def help_rows() -> list[Row]:
-    """The rows of ``recorder_node --help``."""
-    return [p.row() for p in PARAMETERS]

@@ -7,12 +7,13 @@ far on ``get_policy``.  The best policy, its log and the checkpoint are saved at
 ``checkpoint_seconds`` (30 s) of a run, so a killed node loses at most that.
 
 Parameters (msg_configs/params/trainer_node.yaml; docs/ros_interface.md has the table):
-generated from the config dataclasses by ``sapga_ros.nodes.trainer_params`` -- the run's
-``method``, ``steps``, ``seed``, ``jobs``, ``checkpoint_seconds``, ``checkpoint_every``,
-``resume``, SAP-GA's ``n_pop``, ``n_child``, ``l_min``, ``l_max``, ``style``, Q-learning's
-``chunk_steps``, the node's ``out``, ``train_on_start``, ``policy_file``,
-``diagnostics_period``, ``log_period`` -- plus ``problem`` (read-only), ``delta`` and
-``checkpoint`` ('': ``<out without suffix>.ckpt`` beside ``out``, none without ``out``).
+the declarations of the config dataclasses (``sapga_ros.nodes.trainer_params``) -- the
+run's ``method``, ``delta`` (default: the problem's ``episode.delta``), ``steps``, ``seed``,
+``jobs``, ``checkpoint_seconds``, ``checkpoint_every``, ``resume``, SAP-GA's ``n_pop``,
+``n_child``, ``l_min``, ``l_max``, ``style``, ``variant``, Q-learning's ``chunk_steps``, the
+node's ``out``, ``train_on_start``, ``policy_file``, ``diagnostics_period``,
+``log_period`` -- plus ``problem`` (read-only) and ``checkpoint`` ('': ``<out without
+suffix>.ckpt`` beside ``out``, none without ``out``).
 ``out`` and the checkpoint directory must be in existing folders (a run is refused
 otherwise).  A change applies to the next run.
 
@@ -44,8 +45,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
-from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
-from rclpy.exceptions import ParameterException
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from std_srvs.srv import Trigger
@@ -53,11 +53,13 @@ from std_srvs.srv import Trigger
 from sapga_ros.errors import ConfigError, SapgaError
 from sim_nodes.ros.common import run_node, steady_clock
 from sapga_ros.exemplars.policy import ExemplarPolicy, load_policy
-from sapga_ros.nodes.trainer_params import PROBLEM, check_setting, parameters, train_config
+from sapga_ros.nodes.trainer_params import PARAMETERS, check_setting, train_config
 from sapga_ros.nodes.trainer_run import RunHooks, TrainingRun
 from sapga_ros.nodes.trainer_status import RunStatus, diagnostics
 from sapga_ros.training.loop import TrainConfig
+from sapga_ros.optim.sapga import memory_problem
 from sim_nodes.problem import Problem, load_problem
+from sim_nodes.ros.params import declare
 
 JOIN_TIMEOUT_S = 120.0  # [s] shutdown waits this long for the run to stop and save
 STOP_WAIT_S = 60.0      # [s] the stop service waits this long for the round to end
@@ -80,25 +82,19 @@ class TrainerNode(Node):
 
     def __init__(self, node_name: str = 'trainer_node', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
-        name = self.declare_parameter('problem', PROBLEM[0], ParameterDescriptor(
-            description=PROBLEM[1], read_only=True)).value
+        name = declare(self, PARAMETERS[:1])['problem']
         self.problem: Problem = load_problem(name)
-        table = parameters()
-        try:
-            for key, (default, descriptor) in table.items():
-                self.declare_parameter(key, default, descriptor)
-        except ParameterException as exc:      # a value outside the descriptor's range
-            raise ConfigError(f'{self.get_name()}: parameter {exc}') from exc
-        for key in table:
-            reason = check_setting(key, self.get_parameter(key).value)
-            if reason:
-                raise ConfigError(f'{self.get_name()}: parameter {reason}')
+        values = declare(self, PARAMETERS[1:], self.problem)
+        reason = memory_problem(values['n_pop'], values['n_child'], values['l_max'])
+        if reason:
+            raise ConfigError(f'{self.get_name()}: {reason}')
 
         self._run: TrainingRun | None = None
         self._closing = False
         self._served = Served(None, '', 'no policy yet: no training run has found one (call '
                                         'train, or set train_on_start or policy_file)')
-        self._status = RunStatus(self._delta(), self.get_parameter('method').value,
+        self._status = RunStatus(self.get_parameter('delta').value,
+                                 self.get_parameter('method').value,
                                  self.get_parameter('seed').value)
         self._out = ''                  # the policy file of the current or last run
         policy_file = self.get_parameter('policy_file').value
@@ -129,14 +125,9 @@ class TrainerNode(Node):
 
     # configuration --------------------------------------------------------------------------
 
-    def _delta(self) -> float:
-        value = float(self.get_parameter('delta').value)
-        return self.problem.default_delta if math.isnan(value) or value < 0 else value
-
     def train_config(self) -> TrainConfig:
         """The run the current parameters describe (``SapgaError`` if inconsistent)."""
-        return train_config(lambda key: self.get_parameter(key).value, self.problem.name,
-                            self._delta())
+        return train_config(lambda key: self.get_parameter(key).value, self.problem.name)
 
     def _serve_file(self, path: str) -> None:
         policy = load_policy(path, self.problem)   # PolicyFileError names what is wrong
@@ -145,8 +136,13 @@ class TrainerNode(Node):
                                'finds a best policy')
 
     def _validate_parameters(self, params: list[Parameter]) -> SetParametersResult:
+        given = {param.name: param.value for param in params}
+        counts = [given.get(k, self.get_parameter(k).value)
+                  for k in ('n_pop', 'n_child', 'l_max')]
         for param in params:
             reason = check_setting(param.name, param.value)
+            if reason is None and param.name in ('n_pop', 'n_child', 'l_max'):
+                reason = memory_problem(*counts)
             if reason is None and param.name == 'policy_file' and param.value:
                 try:
                     load_policy(param.value, self.problem)
@@ -308,7 +304,8 @@ class TrainerNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """``ros2 run sapga_ros trainer_node``."""
-    return run_node(lambda: TrainerNode(), args)
+    return run_node(lambda: TrainerNode(), args, parameters=lambda: PARAMETERS,
+                    name='trainer_node')
 
 
 if __name__ == '__main__':

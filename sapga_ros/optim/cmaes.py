@@ -160,7 +160,7 @@ def train_cmaes(problem_name: str, delta: float | None, steps: int, seed: int,
     (its ``meta``: value, delta_star, run_delta_star, steps, seed, method) and the log, one
     row per generation (``progress(row)`` is called with each)."""
     problem = load_problem(problem_name)
-    delta = float(problem.default_delta if delta is None else delta)
+    delta = problem.resolve('delta', delta)
     evaluator = Evaluator(problem, delta)
     search = CmaesSearch(problem, CmaesParams(exemplars, sigma0, popsize), seed)
     history: list[dict] = []

@@ -17,7 +17,7 @@ import numpy as np
 from sapga_ros.errors import CheckpointError
 from sapga_ros.optim.base import Optimizer, Result, State
 from sapga_ros.optim.qlearning import QTable, learn
-from sapga_ros.optim.settings import check, setting
+from sim_nodes.params import check, param
 from sim_nodes.goal import alt_goal_arrays, goal_arrays
 from sim_nodes.models import model_id
 from sim_nodes.problem import Problem
@@ -34,9 +34,9 @@ class QlParams:
     """Q-learning run parameters; epsilon, eta and the tiling are the problem's
     (``q_learning`` in msg_configs/<problem>.yaml)."""
 
-    chunk_steps: int = setting(1_000_000, 'Q-learning: MDP steps learnt per chunk (a '
-                               'progress row, a checkpoint opportunity)', low=1000,
-                               high=10_000_000)
+    chunk_steps: int = param(1_000_000, 'Q-learning: MDP steps learnt per chunk (a '
+                             'progress row, a checkpoint opportunity)', low=1000,
+                             high=10_000_000)
 
     def __post_init__(self) -> None:
         check(self)

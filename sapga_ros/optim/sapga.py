@@ -25,10 +25,14 @@ from sapga_ros.optim.base import Optimizer, Result, State
 from sapga_ros.optim.operators import (parents_union, random_policy, refresh,
                                        uniform_crossover)
 from sapga_ros.optim.population import Individual, pack, unpack
-from sapga_ros.optim.settings import check, setting
+from sim_nodes.params import check, param
 from sim_nodes.problem import Problem
 
 COUNT = 1_000_000                          # most policies, children or exemplars a setting asks
+# Memory of a generation: about 100 bytes per n_pop x (n_child + 1) x l_max exemplars at the
+# peak of ask() and the batch evaluation (measured on pdip, D = 6: 101 bytes); 128 leaves room.
+EXEMPLAR_BYTES = 128
+MAX_HELD_BYTES = 8 << 30                   # [bytes] a run's population may need, at most
 VARIANTS = {                               # name -> what changes from the paper's algorithm
     'paper': 'the paper\'s SAP-GA: the family member of best value survives (a parent '
              'among equals)',
@@ -44,25 +48,38 @@ VARIANTS = {                               # name -> what changes from the paper
 class SapgaParams:
     """SAP-GA strategy parameters (paper 4.3 defaults)."""
 
-    n_pop: int = setting(100, 'N_pop, policies in the population', flag='--pop', low=2,
+    n_pop: int = param(100, 'N_pop, policies in the population', flag='--pop', low=2,
+                       high=COUNT)
+    n_child: int = param(10, 'N_child, children per family', flag='--children', low=1,
                          high=COUNT)
-    n_child: int = setting(10, 'N_child, children per family', flag='--children', low=1,
-                           high=COUNT)
-    l_min: int = setting(50, 'L_min, fewest exemplars in a policy', low=1, high=COUNT)
-    l_max: int = setting(100, 'L_max, most exemplars in a policy', low=1, high=COUNT)
+    l_min: int = param(50, 'L_min, fewest exemplars in a policy', low=1, high=COUNT)
+    l_max: int = param(100, 'L_max, most exemplars in a policy', low=1, high=COUNT)
     crossover_rate: tuple = (0.3, 0.7)     # range of r in uniform exemplar crossover
     refresh_rate: tuple = (0.0, 0.5)       # range of r in the refresh operator
     max_tries: int = 100                   # crossover attempts before a child is repaired
-    style: str = setting('state-action', 'exemplar style of the policies evolved: ' + '; '.join(
+    style: str = param('state-action', 'exemplar style of the policies evolved: ' + '; '.join(
         f'{s.name}: {s.summary}' for s in STYLES.values()), choices=tuple(STYLES))
-    variant: str = setting('paper', 'SAP-GA variant (issue 8; paper is the published '
-                           'algorithm): ' + '; '.join(f'{k}: {v}' for k, v in VARIANTS.items()),
-                           choices=tuple(VARIANTS))
+    variant: str = param('paper', 'SAP-GA variant (paper is the published algorithm): '
+                         + '; '.join(f'{k}: {v}' for k, v in VARIANTS.items()),
+                         choices=tuple(VARIANTS))
 
     def __post_init__(self) -> None:
         check(self)
         if self.l_min > self.l_max:
             raise ConfigError(f'l_min {self.l_min} is larger than l_max {self.l_max}')
+        reason = memory_problem(self.n_pop, self.n_child, self.l_max)
+        if reason:
+            raise ConfigError(reason)
+
+
+def memory_problem(n_pop: int, n_child: int, l_max: int) -> str | None:
+    """The one line refusing a population whose exemplars cannot fit in memory, or None."""
+    held = n_pop * (n_child + 1) * l_max * EXEMPLAR_BYTES
+    if held <= MAX_HELD_BYTES:
+        return None
+    return (f'n_pop {n_pop} x (n_child {n_child} + 1) x l_max {l_max} exemplars need about '
+            f'{held / (1 << 30):,.0f} GiB, more than the {MAX_HELD_BYTES >> 30} GiB a run may '
+            'hold: lower n_pop, n_child or l_max')
 
 
 @dataclass

@@ -52,8 +52,8 @@ def summarize(rec: Recording) -> tuple[dict[str, Any], list[Episode], Any]:
     messages, failed = decode_messages(rec, [t for t, r in roles.items() if r in EPISODE_ROLES])
     episodes, bad_events = build_episodes(messages, roles, problem)
     goal_delta = finite(meta.get('delta'))
-    if goal_delta is None and problem is not None:
-        goal_delta = problem.default_delta
+    if problem is not None:
+        goal_delta = problem.resolve('delta', goal_delta)
     counts = rec.topic_counts()
     topics = [{'topic': name, 'type': t.type, 'count': counts[name], 'role': roles.get(name),
                'message_encoding': t.message_encoding,

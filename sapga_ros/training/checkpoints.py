@@ -22,14 +22,14 @@ from typing import Any, Callable
 from sapga_ros.errors import CheckpointError, ConfigError
 from sapga_ros.io.checkpoint import load_checkpoint, save_checkpoint
 from sapga_ros.optim.base import Optimizer, State
-from sapga_ros.optim.settings import described
+from sim_nodes.params import declared
 
 
 def settings_of(config: Any) -> dict[str, Any]:
-    """Every ``setting`` field of ``config`` and of its dataclass fields, by name."""
+    """Every parameter of ``config`` and of its dataclass fields, by name."""
     out: dict[str, Any] = {}
-    for f, _ in described(type(config)):
-        out[f.name] = getattr(config, f.name)
+    for p in declared(type(config)):
+        out[p.name] = getattr(config, p.name)
     for f in fields(config):
         value = getattr(config, f.name)
         if is_dataclass(value):

@@ -2,7 +2,6 @@
 comparison), parsed and validated, and the one training run each (experiment, seed) is."""
 from __future__ import annotations
 
-import math
 import re
 import time
 from dataclasses import dataclass
@@ -14,6 +13,7 @@ from sapga_ros.errors import ConfigError
 from sapga_ros.exemplars.styles import STYLES
 from sapga_ros.io.bounded import load_yaml, read_bounded
 from sim_nodes.goal import alternative_goal
+from sim_nodes.params import DELTA
 from sim_nodes.problem import config_dir, load_problem
 
 MAX_SET_BYTES = 1 << 20
@@ -55,10 +55,9 @@ def _experiment(e: Any, where: str) -> Experiment:
         if key not in e:
             raise ConfigError(f'{where}: missing {key!r}')
     delta = e['delta']
-    if isinstance(delta, bool) or not isinstance(delta, (int, float)) or \
-            not (math.isfinite(delta) and delta >= 0):
-        raise ConfigError(f'{where}.delta: expected a finite number >= 0, '
-                          f'got {str(delta)[:40]!r}')
+    reason = DELTA.reason(DELTA.coerce(delta))
+    if reason:
+        raise ConfigError(f'{where}.{reason}')
     exp = Experiment(_count(e['id'], f'{where}.id', 0, MAX_SEEDS), str(e['problem'])[:80],
                      float(delta), str(e['method'])[:40],
                      _count(e['steps'], f'{where}.steps', 1, MAX_STEPS),

@@ -33,8 +33,8 @@ from sapga_ros.io.atomic import write_atomic
 from sapga_ros.optim.base import Optimizer
 from sapga_ros.optim.qlearner import QLearning, QlParams, learn_together
 from sapga_ros.optim.sapga import SapGA, SapgaParams
-from sapga_ros.optim.settings import check, setting
 from sapga_ros.training import checkpoints
+from sim_nodes.params import DELTA, check, param
 from sim_nodes.problem import Problem, load_problem
 
 METHODS: dict[str, type[Optimizer]] = {'sapga': SapGA, 'ql': QLearning}
@@ -42,23 +42,23 @@ METHODS: dict[str, type[Optimizer]] = {'sapga': SapGA, 'ql': QLearning}
 
 @dataclass(frozen=True)
 class TrainConfig:
-    """Settings of one training run (``setting`` fields: ``sapga train`` options and trainer
-    node parameters alike)."""
+    """Settings of one training run (``param`` fields: ``sapga train`` options and trainer
+    node parameters alike; ``delta`` None: the problem's)."""
 
     problem: str = 'acrobot'               # problem name (msg_configs/<problem>.yaml)
-    method: str = setting('sapga', 'sapga (SAP-GA) or ql (the tabular Q-learning baseline)',
-                          choices=tuple(METHODS))
-    delta: float | None = None             # goal difficulty; None: the problem's default
-    steps: int = setting(30_000_000, 'budget of MDP steps simulated', low=1)
-    seed: int = setting(0, 'seed of every random choice of the run', low=0)
-    jobs: int = setting(0, 'evaluation threads; 0: every core', low=0)
+    method: str = param('sapga', 'sapga (SAP-GA) or ql (the tabular Q-learning baseline)',
+                        choices=tuple(METHODS))
+    delta: float | None = param(DELTA)
+    steps: int = param(30_000_000, 'budget of MDP steps simulated', low=1)
+    seed: int = param(0, 'seed of every random choice of the run', low=0)
+    jobs: int = param(0, 'evaluation threads; 0: every core', low=0)
     checkpoint: str | None = None          # directory for checkpoint.npz; None: none
-    checkpoint_seconds: float = setting(30.0, '[s] of wall time at most between saves of the '
-                                        'checkpoint and the best policy so far', low=0.01,
-                                        high=86400.0)
-    checkpoint_every: int = setting(0, 'rounds (SAP-GA generations, Q-learning chunks) '
-                                    'between checkpoints besides; 0: by time only', low=0)
-    resume: bool = setting(False, 'continue from the checkpoint in the checkpoint directory')
+    checkpoint_seconds: float = param(30.0, 'of wall time at most between saves of the '
+                                      'checkpoint and the best policy so far', low=0.01,
+                                      high=86400.0, unit='s')
+    checkpoint_every: int = param(0, 'rounds (SAP-GA generations, Q-learning chunks) '
+                                  'between checkpoints besides; 0: by time only', low=0)
+    resume: bool = param(False, 'continue from the checkpoint in the checkpoint directory')
     params: SapgaParams = field(default_factory=SapgaParams)
     ql: QlParams = field(default_factory=QlParams)
 
@@ -116,7 +116,8 @@ def _start(config: TrainConfig, problem: Problem, delta: float,
 
 def _save(config: TrainConfig, problem: Problem, delta: float, opt: Optimizer,
           history: list[dict]) -> None:
-    settings = {k: v for k, v in checkpoints.settings_of(config).items() if k != 'resume'}
+    settings = {k: v for k, v in checkpoints.settings_of(config).items()
+                if k not in ('resume', 'delta')}     # the run's delta is in run_settings
     checkpoints.save(config.checkpoint, run_settings(config, problem, delta),
                      json_roundtrip(settings), opt, history)
 
@@ -189,7 +190,7 @@ def _rounds(config: TrainConfig, initial: list[ExemplarPolicy] = (),
     """``train`` as a generator: it yields the optimizer before each round (a caller may
     prepare the round, as ``train_lanes`` does) and returns the ``TrainResult``."""
     problem = load_problem(config.problem)
-    delta = float(problem.default_delta if config.delta is None else config.delta)
+    delta = problem.resolve('delta', config.delta)
     jobs = set_jobs(config.jobs)
     evaluator = Evaluator(problem, delta)
     opt, history = _start(config, problem, delta, list(initial))

@@ -19,7 +19,8 @@ from rclpy.node import Node
 from std_srvs.srv import Trigger
 
 from sim_nodes.ros.common import NodeExit, steady_clock
-from sim_nodes.ros.params import Param, declare
+from sim_nodes.params import Param
+from sim_nodes.ros.params import declare
 
 POLL_S = 0.1                # [s] between readiness questions
 DEFAULT_TIMEOUT_S = 60.0
@@ -30,8 +31,8 @@ def gate_parameters() -> list[Param]:
     """The two parameters the gate declares on its node."""
     return [Param('wait_for_recorder', '', 'recorder node to wait for before the run starts '
                   "('' = none)", read_only=True),
-            Param('recorder_timeout', DEFAULT_TIMEOUT_S, '[s] how long to wait for the '
-                  'recorder (longer: the node stops, exit 1)', 1e-3, 86400.0, read_only=True)]
+            Param('recorder_timeout', DEFAULT_TIMEOUT_S, 'how long to wait for the recorder '
+                  '(longer: the node stops, exit 1)', 1e-3, 86400.0, unit='s', read_only=True)]
 
 
 class RecorderGate:

@@ -3,11 +3,13 @@
 ``run_node(make_node, args, parameters=...)``:
 
 * ``-h`` / ``--help`` among the executable's own arguments (not inside ``--ros-args``):
-  print the usage with the node's parameter table (``params.usage_lines``, from the rows
-  the node declares its parameters from) and exit 0; no ROS context, no node;
+  print the usage with the node's parameter table (``sim_nodes.params.usage_lines``, from
+  the ``Param`` rows the node declares) and exit 0; no ROS context, no node;
 * ``rclpy.init``: every ``--params-file`` is checked first (a regular file of at most
-  ``MAX_PARAMS_BYTES``, YAML mapping); what rcl still refuses (a malformed ``--ros-args``,
-  a params file rcl's parser rejects) is one line naming it, not rcl's traceback and log;
+  ``MAX_PARAMS_BYTES``, YAML mapping; a value of the node's parameters that its declaration
+  refuses is the same one line the node and ``sapga`` print, after the file's name); what
+  rcl still refuses (a malformed ``--ros-args``, a params file rcl's parser rejects) is one
+  line naming it, not rcl's traceback and log;
 * build the node, spin with ``spin_guarded`` (no callback's exception ends the node:
   each is logged as one line), clean shutdown on Ctrl-C, SIGTERM or external shutdown.
 
@@ -28,14 +30,13 @@ from typing import Any, Callable, Iterator, Sequence
 
 import rclpy
 import yaml
-from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.exceptions import ParameterException
 from rclpy.executors import Executor, ExternalShutdownException
 from rclpy.node import Node
 
 from sim_nodes.errors import ConfigError, SapgaError
 from sim_nodes.files import load_yaml, read_bounded
-from sim_nodes.ros.params import Row, usage_lines
+from sim_nodes.params import Param, check_mapping, usage_lines
 
 EXIT_FAILED = 1                        # a callback stopped the node
 EXIT_USAGE = 2                         # a user error before the node ran
@@ -96,9 +97,10 @@ def params_files(argv: Sequence[str]) -> list[str]:
     return files
 
 
-def check_params_file(path: str) -> None:
+def check_params_file(path: str, table: Sequence[Param] = ()) -> None:
     """``ConfigError`` naming ``path`` unless it is a regular file of YAML holding a mapping
-    (rcl would block on a FIFO, and answers a bad file with a traceback)."""
+    (rcl would block on a FIFO, and answers a bad file with a traceback) whose values of the
+    parameters in ``table`` are ones their declarations accept."""
     try:
         data = read_bounded(path, MAX_PARAMS_BYTES)
     except OSError as exc:
@@ -111,6 +113,12 @@ def check_params_file(path: str) -> None:
     if doc is not None and not isinstance(doc, dict):      # None: empty, or comments only
         raise ConfigError(f'--params-file {path}: expected a mapping of node names to '
                           f'ros__parameters, got {type(doc).__name__}')
+    known = {p.name for p in table}
+    for section in (doc or {}).values():
+        values = section.get('ros__parameters') if isinstance(section, dict) else None
+        if isinstance(values, dict):       # other nodes' parameters are theirs to check
+            check_mapping(table, {k: v for k, v in values.items() if k in known},
+                          f'--params-file {path}')
 
 
 _RCL_WHERE = re.compile(r',? at \S+\.c:\d+')
@@ -140,12 +148,12 @@ def _stderr_held() -> Iterator[list[bytes]]:
             held.append(tmp.read())
 
 
-def init_ros(args: Sequence[str] | None, **kwargs: Any) -> None:
-    """``rclpy.init`` after checking every ``--params-file``; ``ConfigError`` in one line for
-    what rcl refuses (its own log line is dropped)."""
+def init_ros(args: Sequence[str] | None, table: Sequence[Param] = (), **kwargs: Any) -> None:
+    """``rclpy.init`` after checking every ``--params-file`` (against ``table``);
+    ``ConfigError`` in one line for what rcl refuses (its own log line is dropped)."""
     argv = list(sys.argv if args is None else args)
     for path in params_files(argv):
-        check_params_file(path)
+        check_params_file(path, table)
     with _stderr_held() as held:
         try:
             rclpy.init(args=args, **kwargs)
@@ -161,30 +169,16 @@ def init_ros(args: Sequence[str] | None, **kwargs: Any) -> None:
 
 # --help ---------------------------------------------------------------------------------------
 
-def usage(exe: str, summary: str, rows: Sequence[Row]) -> str:
+def usage(exe: str, summary: str, table: Sequence[Param]) -> str:
     """The text of ``<exe> --help``."""
     lines = [f'usage: ros2 run {PACKAGE} {exe} [-h] [--ros-args [-p NAME:=VALUE ...] '
              '[--params-file FILE] [-r FROM:=TO ...]]', '', summary, '',
              'Parameters (-p NAME:=VALUE, or a --params-file; examples in '
              f'$(ros2 pkg prefix {PACKAGE})/share/{PACKAGE}/params/):']
-    lines += usage_lines(rows)
+    lines += usage_lines(table)
     lines += ['', 'Exit status: 0 stopped (Ctrl-C, SIGTERM); 1 the node failed while running; '
               '2 bad arguments, parameters or files (one line on stderr).']
     return '\n'.join(lines)
-
-
-def trainer_style_rows(module: Any) -> list[Row]:
-    """The rows of a node module that declares its parameters from ``parameters()`` (name ->
-    (default, descriptor)) and a ``PROBLEM = (default, description)`` pair."""
-    rows: list[Row] = []
-    problem = getattr(module, 'PROBLEM', None)
-    if isinstance(problem, tuple) and len(problem) == 2:
-        rows.append(('problem', problem[0],
-                     ParameterDescriptor(description=problem[1], read_only=True)))
-    table = getattr(module, 'parameters', None)
-    if callable(table):
-        rows += [(name, default, d) for name, (default, d) in table().items()]
-    return rows
 
 
 def _summary(module: Any) -> str:
@@ -196,12 +190,12 @@ def _summary(module: Any) -> str:
 
 def run_node(make_node: Callable[[], Node], args: list[str] | None = None,
              executor: Callable[[], Executor] | None = None,
-             parameters: Callable[[], Sequence[Row]] | None = None, name: str | None = None,
+             parameters: Callable[[], Sequence[Param]] = tuple, name: str | None = None,
              on_exit: Callable[[], None] | None = None, **init_kwargs: Any) -> int:
     """Run one node the standard way and return the process exit code (module docstring).
 
-    ``parameters()``: the rows of ``--help`` (default: ``trainer_style_rows`` of the module
-    ``make_node`` comes from); ``name``: the executable (default: ``argv[0]``'s);
+    ``parameters()``: the node's parameter declarations (``--help``, params files);
+    ``name``: the executable (default: ``argv[0]``'s);
     ``on_exit``: called before the node is destroyed; ``init_kwargs`` go to ``rclpy.init``.
     A main() is then one line: ``return run_node(lambda: MyNode(), args, parameters=...)``.
     """
@@ -209,13 +203,12 @@ def run_node(make_node: Callable[[], Node], args: list[str] | None = None,
     exe = name or Path(argv[0] if argv else 'node').name
     module = sys.modules.get(getattr(make_node, '__module__', ''), None)
     if any(arg in HELP for arg in own_arguments(argv[1:])):
-        rows = parameters() if parameters is not None else trainer_style_rows(module)
-        print(usage(exe, _summary(module), rows))
+        print(usage(exe, _summary(module), parameters()))
         return 0
     node = None
     code = 0
     try:
-        init_ros(args, **init_kwargs)
+        init_ros(args, parameters(), **init_kwargs)
         node = make_node()
         ex = executor() if executor is not None else rclpy.get_global_executor()
         ex.add_node(node)

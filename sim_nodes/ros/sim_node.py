@@ -42,8 +42,7 @@ from sim_nodes.ros.markers import PendulumMarkers
 from sim_nodes.ros.params import declare
 from sim_nodes.ros.recorder_gate import RecorderGate
 from sim_nodes.ros.sim_settings import (MODES, SimSettings, check_setting,  # noqa: F401
-                                        declare_settings, help_rows, read_settings,
-                                        sim_parameters)
+                                        declare_settings, read_settings, sim_parameters)
 
 
 def _json_number(x: float) -> float | None:
@@ -290,7 +289,7 @@ def main(args: list[str] | None = None, problem: str = 'acrobot',
     """``ros2 run sapga_ros sim_node``: a simulator node of any problem (``problem`` is the
     default of the ``problem`` parameter)."""
     return run_node(lambda: SimNode(default_problem=problem, node_name=node_name), args,
-                    parameters=lambda: help_rows(problem), name=node_name)
+                    parameters=lambda: sim_parameters(problem), name=node_name)
 
 
 def model_main(model: str) -> Callable[[list[str] | None], int]:

@@ -3,17 +3,17 @@ with ranges (``params.py``), their checks, the executables' ``--help`` and the f
 ``SimSettings``.
 
 ``ros2 run sapga_ros sim_node --help`` prints the table (name, type, default, range or
-choices, description) from ``sim_parameters``; the same rows declare the parameters.  In
-short: ``problem`` (read-only; ``<model>_sim``: the model's own, ``sim_node``: acrobot),
-``mode`` (``realtime``: one MDP step per tick of wall time / ``real_time_factor``, zero-order
-hold on the latest command; ``lockstep``: one MDP step per command answering the current
-state), ``real_time_factor``, ``delta`` and ``n_step`` (default: the problem's
-``episode.delta`` / ``episode.n_step``), ``auto_reset``, ``max_episodes`` (the reset service
-still starts episodes beyond it), ``republish_period`` (lockstep: the waiting state again,
-same stamp), ``publish_clock`` (false for all but one of several simulators in one domain),
-``markers``, ``qos_profile`` (read-only; ``sensor_data``: best effort, depth 5, for realtime
-runs), and the recorder gate's ``wait_for_recorder`` and ``recorder_timeout``
-(``recorder_gate.py``).
+choices, description) from ``sim_parameters``; the same ``Param`` rows
+(``sim_nodes/params.py``) declare the parameters. In short: ``problem`` (read-only;
+``<model>_sim``: the model's own, ``sim_node``: acrobot), ``mode`` (``realtime``: one MDP
+step per tick of wall time / ``real_time_factor``, zero-order hold on the latest command;
+``lockstep``: one MDP step per command answering the current state), ``real_time_factor``,
+``delta`` and ``n_step`` (default: the problem's ``episode.delta`` / ``episode.n_step``),
+``auto_reset``, ``max_episodes`` (the reset service still starts episodes beyond it),
+``republish_period`` (lockstep: the waiting state again, same stamp), ``publish_clock``
+(false for all but one of several simulators in one domain), ``markers``, ``qos_profile``
+(read-only; ``sensor_data``: best effort, depth 5, for realtime runs), and the recorder
+gate's ``wait_for_recorder`` and ``recorder_timeout`` (``recorder_gate.py``).
 """
 from __future__ import annotations
 
@@ -22,14 +22,14 @@ from typing import Any
 
 from rclpy.node import Node
 
+from sim_nodes.params import DELTA, N_STEP, Param
 from sim_nodes.problem import Problem
 from sim_nodes.ros.common import QOS_PROFILES
-from sim_nodes.ros.params import Param, Row, check, declare
+from sim_nodes.ros.params import check, declare
 from sim_nodes.ros.recorder_gate import gate_parameters
 
 MODES = ('realtime', 'lockstep')
-MAX_COUNT = 10 ** 9         # n_step, max_episodes: at most this many
-MAX_DELTA = 1e9
+MAX_COUNT = 10 ** 9         # max_episodes: at most this many
 
 
 @dataclass(frozen=True)
@@ -47,10 +47,8 @@ class SimSettings:
     markers: bool
 
 
-def sim_parameters(default_problem: str, problem: Problem | None = None) -> list[Param]:
-    """The simulator's parameters, ``problem``'s defaults (None: --help, named in words)."""
-    delta = problem.default_delta if problem is not None else 0.0
-    n_step = problem.n_step if problem is not None else 1
+def sim_parameters(default_problem: str) -> list[Param]:
+    """The simulator's parameters (``delta``, ``n_step``: the problem's by default)."""
     return [
         Param('problem', default_problem, 'problem name: msg_configs/<problem>.yaml',
               read_only=True),
@@ -58,25 +56,18 @@ def sim_parameters(default_problem: str, problem: Problem | None = None) -> list
               'real_time_factor; lockstep: one per command answering the current state',
               choices=MODES),
         Param('real_time_factor', 1.0, 'sim time / wall time in realtime mode', 1e-3, 1e4),
-        Param('delta', float(delta), 'goal difficulty: the episode ends in S_delta', 0.0,
-              MAX_DELTA, shown='' if problem is not None else "problem's episode.delta"),
-        Param('n_step', int(n_step), 'MDP steps per episode at most', 1, MAX_COUNT,
-              shown='' if problem is not None else "problem's episode.n_step"),
+        DELTA,
+        N_STEP,
         Param('auto_reset', True, 'start a new episode after one ends'),
         Param('max_episodes', 0, 'auto_reset starts no episode beyond this many (0 = '
               'unlimited)', 0, MAX_COUNT),
-        Param('republish_period', 0.2, '[s] lockstep: re-publish the waiting state this often '
-              '(0 = never)', 0.0, 3600.0),
+        Param('republish_period', 0.2, 'lockstep: re-publish the waiting state this often '
+              '(0 = never)', 0.0, 3600.0, unit='s'),
         Param('publish_clock', True, 'publish /clock (one simulator per domain should)'),
         Param('markers', True, 'publish the pendulum as visualization_msgs/MarkerArray'),
         Param('qos_profile', 'reliable', 'reliable (the problem ros.qos) | sensor_data (best '
               'effort)', choices=QOS_PROFILES, read_only=True),
         *gate_parameters()]
-
-
-def help_rows(default_problem: str) -> list[Row]:
-    """The rows of the simulator executables' ``--help``."""
-    return [p.row() for p in sim_parameters(default_problem)]
 
 
 _CHECKED = sim_parameters('acrobot')    # ranges and choices do not depend on the problem
@@ -90,9 +81,10 @@ def check_setting(name: str, value: Any) -> str | None:
 def declare_settings(node: Node, problem: Problem) -> str:
     """Declare the simulator's parameters but ``problem`` (declared first, to read it) and
     the recorder gate's; return the (read-only) qos_profile."""
-    table = [p for p in sim_parameters(problem.name, problem)
-             if p.name != 'problem' and p not in gate_parameters()]
-    return declare(node, table)['qos_profile']
+    gate = {p.name for p in gate_parameters()}
+    table = [p for p in sim_parameters(problem.name) if p.name != 'problem' and
+             p.name not in gate]
+    return declare(node, table, problem)['qos_profile']
 
 
 def read_settings(node: Node) -> SimSettings:
