@@ -87,7 +87,7 @@ def test_runs_of_other_settings_are_refused_not_mixed(tmp_path):
     ('experiments: [{id: 1, problem: acrobot, delta: 0.1, method: ql, steps: .inf}]',
      r'experiments\[0\].steps: expected a whole number'),
     ('experiments: [{id: 1, problem: acrobot, delta: .nan, method: ql, steps: 10}]',
-     r'experiments\[0\].delta: expected a finite number'),
+     r'experiments\[0\].delta: expected a number in \[0, 1e9\], got nan'),
     ('experiments: [{id: 1, problem: nope, delta: 0.1, method: ql, steps: 10}]', 'nope'),
     ('experiments: [{id: 1, problem: acrobot, delta: 0.1, method: ga, steps: 10}]',
      r'method: expected one of sapga, ql, cmaes'),

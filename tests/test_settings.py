@@ -67,7 +67,7 @@ def test_cli_options_set_every_setting():
     (['--pop', '1'], 'n_pop: expected an integer in [2, 1e6], got 1'),
     (['--chunk-steps', '10'], 'chunk_steps: expected an integer in [1000, 1e7], got 10'),
     (['--seed', '-1'], 'seed: expected an integer >= 0, got -1'),
-    (['--style', 'telepathy'], "style: expected one of state-action, via-point, "
+    (['--style', 'telepathy'], 'style: expected one of state-action, via-point, '
                                "state-value, state-state, state-action-value, got 'telepathy'"),
     (['--delta', '-3'], 'delta: expected a number in [0, 1e9], got -3.0'),
 ])
@@ -78,7 +78,6 @@ def test_cli_refuses_values_outside_the_bounds(argv, needle, capsys):
         build_parser().parse_args(['train', '--problem', 'acrobot', *argv])
     err = capsys.readouterr().err
     assert exit_.value.code == 2 and err.splitlines()[-1] == f'sapga train: error: {needle}'
-
 
 
 def test_dataclasses_refuse_values_outside_the_bounds():

@@ -204,14 +204,18 @@ def test_invalid_parameters_are_refused_with_the_reason(ros, tmp_path):
     """Bad settings fail at start or are refused with the reason; the node keeps serving."""
     with pytest.raises(ConfigError, match='method'):
         ros.start(TrainerNode, params={'method': 'cmaes'})
-    trainer = ros.start(TrainerNode, params={'delta': math.nan,
-                                             'policy_file': str(tmp_path / 'missing.json')})
+    for delta in (math.nan, -1.0):          # no sentinel: only a delta the run can use
+        with pytest.raises(ConfigError, match=rf'delta: expected a number in \[0, 1e9\], '
+                                              rf'got {delta}'):
+            ros.start(TrainerNode, params={'delta': delta}, node_name=f'bad_{delta != delta}')
+    trainer = ros.start(TrainerNode, params={'policy_file': str(tmp_path / 'missing.json')})
     client = ros.start(Client)
     response = ros.call(client.get_policy, Trigger.Request())
     assert not response.success and 'missing.json: cannot read' in response.message
     assert trainer.train_config().delta == load_problem('acrobot').default_delta
-    for name, value in [('steps', 0), ('n_pop', 1), ('delta', math.inf), ('jobs', -1),
-                        ('method', 'x'), ('policy_file', str(tmp_path / 'missing.json'))]:
+    for name, value in [('steps', 0), ('n_pop', 1), ('delta', math.inf), ('delta', -1.0),
+                        ('jobs', -1), ('method', 'x'),
+                        ('policy_file', str(tmp_path / 'missing.json'))]:
         result = trainer.set_parameters([Parameter(name, value=value)])[0]
         assert not result.successful and name in result.reason, (name, result.reason)
     assert trainer.set_parameters([Parameter('delta', value=0)])[0].successful  # int is fine

@@ -234,7 +234,8 @@ def episode_summary(ep: Episode, problem: Any, goal_delta: float | None) -> dict
     delta_star = finite(ev.get('delta_star'))    # absent from the event: from the states
     if delta_star is None and 'delta_star' not in ev:
         delta_star = delta_states
-    gd = finite(ev.get('goal_delta')) or goal_delta
+    gd = finite(ev.get('goal_delta'))             # 0 is a goal delta, not "none given"
+    gd = goal_delta if gd is None else gd
     actions = Counter(v for _, v in ep.commands)
     return {
         'episode': ep.number, 'end': ep.end, 'steps': steps,

@@ -7,7 +7,7 @@
 * ``declare(node, table, problem)``: declares each row, a ``FromProblem`` default as the
   problem's value; an integer given for a double parameter (``-p delta:=0``, ``ros2 param
   set ... 0``) is taken as that double; a value refused at start is a ``ConfigError``
-  ``<node>: <the one line of Param.reason>``;
+  ``<node>: <the one line of Param.reason>``, and a set refused later answers that line;
 * ``check(table, name, value)``: the same line for a set-parameters callback, or None.
 """
 from __future__ import annotations
@@ -15,7 +15,7 @@ from __future__ import annotations
 from typing import Any, Iterable
 
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
-                                ParameterType)
+                                ParameterType, SetParametersResult)
 from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -54,17 +54,30 @@ def _as_doubles(table: dict[str, Param], params: list[Parameter]) -> list[Parame
             and q.type_ == Parameter.Type.INTEGER else q for q in params]
 
 
-def _accept_integers(node: Node, table: dict[str, Param]) -> None:
+def _adapt(node: Node, table: dict[str, Param]) -> None:
     """Integers for the double parameters of ``table``: in the start-up overrides, and in
-    every later set (a pre-set callback, which runs before rclpy's type check)."""
+    every later set (a pre-set callback, which runs before rclpy's type check).  A later set
+    that rclpy refuses (its descriptor range check runs before any on-set callback, in its
+    own words) answers the declaration's line instead, whenever the declaration refuses the
+    value too."""
     overrides = getattr(node, '_parameter_overrides', {})
     for q in _as_doubles(table, list(overrides.values())):
         overrides[q.name] = q
-    doubles = getattr(node, '_sapga_doubles', None)
-    if doubles is None:
-        node._sapga_doubles = doubles = {}
-        node.add_pre_set_parameters_callback(lambda params: _as_doubles(doubles, params))
-    doubles.update({name: p for name, p in table.items() if p.type is float})
+    known = getattr(node, '_sapga_params', None)
+    if known is None:
+        node._sapga_params = known = {}
+        node.add_pre_set_parameters_callback(lambda params: _as_doubles(known, params))
+        rclpy_set = node._set_parameters_atomically
+
+        def set_atomically(params: list[Parameter]) -> SetParametersResult:
+            result = rclpy_set(params)
+            if not result.successful:
+                reasons = [known[q.name].reason(known[q.name].coerce(q.value)) for q in params
+                           if q.name in known and q.type_ != Parameter.Type.NOT_SET]
+                result.reason = next((r for r in reasons if r), result.reason)
+            return result
+        node._set_parameters_atomically = set_atomically
+    known.update(table)
 
 
 def _given(node: Node, name: str) -> Any:
@@ -79,7 +92,7 @@ def declare(node: Node, table: Iterable[Param], problem: Problem | None = None
     value); their values by name.  ``ConfigError`` with the one line of ``Param.reason``
     for a value of the wrong type, out of range or not one of the choices."""
     rows = list(table)
-    _accept_integers(node, {p.name: p for p in rows})
+    _adapt(node, {p.name: p for p in rows})
     values: dict[str, Any] = {}
     for p in rows:
         default = problem.resolve(p.name) if p.from_problem else p.default
