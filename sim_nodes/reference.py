@@ -96,7 +96,7 @@ def select(problem, states, state) -> int:
 def episode(problem, states, actions, delta, n_step=None):
     """(return, steps, delta*, reached) of the state-action policy (states, action values)."""
     step = STEPS[problem.model]
-    n_step = problem.n_step if n_step is None else n_step
+    n_step = problem.resolve('n_step', n_step)
     s = problem.initial_state
     total, dstar = 0.0, goal_delta(problem, s)
     for t in range(1, n_step + 1):

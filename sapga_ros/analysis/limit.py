@@ -75,7 +75,7 @@ def _cells(S: np.ndarray, problem: Problem, cells: int) -> np.ndarray:
 def beam_limit(problem: Problem, n_step: int | None = None, width: int = 20_000,
                cells: int = 64, per_cell: int = 2, seed: int = 0) -> Limit:
     """Search the smallest delta reachable within ``n_step`` steps (see the module doc)."""
-    n_step = problem.n_step if n_step is None else n_step
+    n_step = problem.resolve('n_step', n_step)
     rng = np.random.default_rng(seed)
     model, params = model_id(problem.model), problem.params()
     best, inv_scale, fixed = goal_arrays(problem)
