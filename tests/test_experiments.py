@@ -8,6 +8,7 @@ from sapga_ros.errors import ConfigError
 from sapga_ros.training.experiment_report import resample
 from sapga_ros.training.experiment_set import load_experiments
 from sapga_ros.training.experiments import run_experiments
+from sapga_ros.viz.summary_plot import plot_summaries
 
 
 def test_table2_defines_the_papers_four_experiments():
@@ -40,6 +41,7 @@ def test_summary_statistics_are_those_of_the_runs(tmp_path):
     grid = np.array(summaries[0]['grid'])
     at_end = [resample(r['steps'], r['best_value'], grid[-1:])[0] for r in runs]
     assert summaries[0]['best_value']['mean'][-1] == pytest.approx(np.mean(at_end))
+    assert plot_summaries(summaries, tmp_path) == [tmp_path / 'acrobot.png']
     assert (tmp_path / 'acrobot.png').stat().st_size > 10_000
     json.loads((tmp_path / 'summary.json').read_text())  # strict JSON: no NaN literals
 

@@ -168,7 +168,7 @@ def test_the_gap_check_asks_for_the_markers_of_every_state_and_answer():
 def test_a_launch_whose_bag_is_incomplete_exits_1():
     """The swingup report fails (exit 1, the reason printed) when the bag lacks messages,
     even though every episode equals the offline one."""
-    from sapga_ros.launch import Supervisor
+    from sapga_ros.launch.supervisor import Supervisor
     from sapga_ros.launch.swingup import SwingupResult, print_swingup
 
     end = {'event': 'goal', 'episode': 1, 'step': 3, 'return': -3.0, 'delta_star': 0.1}

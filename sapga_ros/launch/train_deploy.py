@@ -26,7 +26,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
-from sapga_ros.launch import LaunchError, Supervisor, launch_main
+from sapga_ros.launch.supervisor import LaunchError, Supervisor, launch_main
 from sapga_ros.launch.ros_args import RosOptions, add_ros_arguments
 from sapga_ros.launch.swingup import (DeployStack, LaunchRos, StackOptions, episode_lines,
                                       event_summary, finite_number, offline_episode,
