@@ -1,4 +1,5 @@
-# Two commands on a fresh machine: `make demo` (the main job) and `make test` (every test).
+# Two commands on a fresh machine: `make demo` (the main job) and `make test` (every test but
+# the long ones, which `make test-long` runs; CI runs both).
 # Both create .venv when it is missing and install everything the project needs into it.
 PYTHON ?= python3
 VENV := .venv
@@ -10,7 +11,7 @@ export PYTHONDONTWRITEBYTECODE := 1
 # kernel sources, so it is shared between checkouts and never stale
 OUT ?= out
 
-.PHONY: demo test bench venv clean
+.PHONY: demo test test-long bench venv clean
 
 venv: $(STAMP)
 
@@ -32,6 +33,11 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(PY) -m pytest -q tests
+
+# the tests marked long (minutes each: 10 recorded launches, the Ray backend, a 60 M-step
+# run killed after 40 s); `make test` runs a smaller form of the first and skips the others
+test-long: $(STAMP)
+	$(PY) -m pytest -q --long -m long tests
 
 bench: $(STAMP)
 	$(VENV)/bin/sapga bench

@@ -120,7 +120,7 @@ def test_a_killed_run_leaves_an_evaluable_policy_and_resumes_to_the_uninterrupte
     print(timings)
 
 
-@pytest.mark.slow
+@pytest.mark.long
 def test_kill_9_of_a_60_million_step_pdip_run_after_40_s_loses_nothing_on_resume(tmp_path):
     """Issue 7's acceptance: `sapga train --problem pdip --steps 60000000` killed after 40 s
     (default save period) leaves a policy `sapga eval` accepts and a checkpoint that
