@@ -17,11 +17,13 @@ import numpy as np
 
 from sapga_ros.analysis.limit import beam_limit
 from sapga_ros.evaluation.evaluator import Evaluator
+from sapga_ros.evaluation.state_selector import StateSelector
 from sapga_ros.exemplars.styles import STYLES
 from sapga_ros.optim.operators import random_policy
 from sapga_ros.optim.qlearner import QlParams
 from sapga_ros.optim.sapga import SapgaParams
 from sapga_ros.training.loop import TrainConfig, train
+from sim_nodes.goal import goal_arrays, goal_delta
 from sim_nodes.jit import compile_seconds
 from sim_nodes.models import model_module
 from sim_nodes.problem import load_problem, problem_names
@@ -35,13 +37,16 @@ def warm(problems: list[str] | None = None) -> float:
     for name in names:
         problem = load_problem(name)
         rng = np.random.default_rng(0)
+        state = problem.initial_state
         for style in STYLES:
             policies = [random_policy(problem, rng, 3, 6, style) for _ in range(2)]
             evaluator = Evaluator(problem)
             evaluator.evaluate(policies)
             evaluator.episode(policies[0])
-        state = problem.initial_state
+            StateSelector(policies[0]).select(state)            # the policy node's call
+        # the simulator node's calls
         model_module(problem.model).mdp_step(state, float(problem.actions[0]), problem.params())
+        goal_delta(state, *goal_arrays(problem), problem.is_angle)
         base = TrainConfig(problem=name, steps=2_000, jobs=1, params=SAPGA)
         train(base)
         train(replace(base, method='ql', steps=1_000, ql=QlParams(chunk_steps=1_000)))
