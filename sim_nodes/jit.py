@@ -10,21 +10,35 @@ code from several files.  Unless ``NUMBA_CACHE_DIR`` is set, each kernel is ther
 cached in a folder named by a digest of every kernel source file of this environment
 package and of the package that defines the kernel (files that use ``@kernel``), so an
 edited model, selector or engine never runs stale machine code.  No package above this one
-is named here: a package's kernels are found from the kernel's own source file.
+is named here: a package's kernels are found from the kernel's own source file.  numba
+also keys each cache entry by its source file's path and modification time, so every
+checkout (and every fresh clone) compiles once: ``make venv`` does it
+(``sapga_ros.training.warm``).
+
+Whatever compiles says so: the first compilation of a cached kernel in a process prints one
+line on stderr (``COMPILING``), and ``compile_seconds()`` adds up the time spent compiling,
+so that progress rates can leave it out.
 """
 from __future__ import annotations
 
 import hashlib
 import os
+import sys
+import threading
+import time
+import weakref
 from functools import lru_cache
 from pathlib import Path
 
 import numba.core.config
 from numba import njit
+from numba.core import event
+from numba.core.caching import NullCache
 
 _ENV_DIR = Path(__file__).resolve().parent
 _USER_CACHE_DIR = os.environ.get('NUMBA_CACHE_DIR')
 OPTIONS = {'cache': True, 'error_model': 'numpy'}
+COMPILING = 'compiling kernels (first run of this checkout: a minute or so; cached after)...'
 
 
 @lru_cache(maxsize=None)
@@ -61,13 +75,54 @@ def cache_dir(source_file: str) -> str:
     return os.path.join(base, 'sapga_ros', f'numba-{kernel_digest(package_dir(source_file))}')
 
 
+class _CompileWatch(event.Listener):
+    """Listens to numba's compile events (fired on a cache miss only): says once that our
+    kernels compile, and adds up the wall time of the outermost compilations."""
+
+    def __init__(self) -> None:
+        self.kernels: weakref.WeakSet = weakref.WeakSet()
+        self.seconds = 0.0
+        self.said = False
+        self._depth = threading.local()
+        self._started = 0.0
+
+    def on_start(self, ev: event.Event) -> None:
+        depth = getattr(self._depth, 'n', 0)
+        self._depth.n = depth + 1
+        if depth:
+            return
+        self._started = time.perf_counter()
+        dispatcher = ev.data['dispatcher']
+        if not self.said and dispatcher in self.kernels \
+                and not isinstance(dispatcher._cache, NullCache):
+            self.said = True
+            print(COMPILING, file=sys.stderr, flush=True)
+
+    def on_end(self, ev: event.Event) -> None:
+        self._depth.n -= 1
+        if not self._depth.n:
+            self.seconds += time.perf_counter() - self._started
+
+
+_WATCH = _CompileWatch()
+event.register('numba:compile', _WATCH)
+
+
+def compile_seconds() -> float:
+    """Seconds this process has spent compiling kernels so far (not loading them from the
+    cache): a rate measured over an interval leaves out the growth of this."""
+    return _WATCH.seconds
+
+
 def _compile(fn, extra: dict):
     saved = numba.core.config.CACHE_DIR
     numba.core.config.CACHE_DIR = cache_dir(fn.__code__.co_filename)  # read at decoration
     try:
-        return njit(**{**OPTIONS, **extra})(fn)
+        dispatcher = njit(**{**OPTIONS, **extra})(fn)
     finally:
         numba.core.config.CACHE_DIR = saved
+    _WATCH.kernels.add(dispatcher)
+    return dispatcher
 
 
 def kernel(fn=None, **extra):

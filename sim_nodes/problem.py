@@ -38,14 +38,15 @@ def config_dir() -> Path:
     if source.is_dir():
         return source
     import sys
-    installed = Path(sys.prefix) / 'share' / 'sapga_ros' / 'msg_configs'
-    if installed.is_dir():
-        return installed
-    try:
-        from ament_index_python.packages import get_package_share_directory
-        return Path(get_package_share_directory('sapga_ros')) / 'msg_configs'
-    except Exception:  # noqa: BLE001 - any failure means: not installed as a ROS package
-        return source
+    # this Python's prefix, then the ament prefixes that list sapga_ros in their resource
+    # index (where ``ros2 pkg prefix`` looks; read as files: the environment imports no ROS)
+    prefixes = [sys.prefix] + os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep)
+    for prefix in filter(None, prefixes):
+        installed = Path(prefix) / 'share' / 'sapga_ros' / 'msg_configs'
+        index = Path(prefix, 'share', 'ament_index', 'resource_index', 'packages', 'sapga_ros')
+        if installed.is_dir() and (prefix == sys.prefix or index.is_file()):
+            return installed
+    return source
 
 
 def parse_number(value: Any, where: str) -> float:

@@ -50,19 +50,20 @@ def rng(seed: int) -> np.random.Generator:
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
-    parser.addoption('--slow', action='store_true',
-                     help='also run the tests marked slow (minutes each; a smaller form of '
-                          'each runs by default)')
+    parser.addoption('--long', action='store_true',
+                     help='also run the tests marked long (minutes each; `make test-long` '
+                          'runs them alone; a smaller form of each runs by default)')
 
 
 def pytest_configure(config: pytest.Config) -> None:
-    config.addinivalue_line('markers', 'slow: takes minutes; skipped unless pytest --slow')
+    config.addinivalue_line('markers', 'long: takes minutes; skipped unless pytest --long '
+                                       '(make test-long)')
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    if config.getoption('--slow'):
+    if config.getoption('--long'):
         return
-    skip = pytest.mark.skip(reason='slow: run with pytest --slow')
+    skip = pytest.mark.skip(reason='long: run with pytest --long (make test-long)')
     for item in items:
-        if 'slow' in item.keywords:
+        if 'long' in item.keywords:
             item.add_marker(skip)

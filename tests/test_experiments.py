@@ -8,6 +8,7 @@ from sapga_ros.errors import ConfigError
 from sapga_ros.training.experiment_report import resample
 from sapga_ros.training.experiment_set import load_experiments
 from sapga_ros.training.experiments import run_experiments
+from sapga_ros.viz.summary_plot import plot_summaries
 
 
 def test_table2_defines_the_papers_four_experiments():
@@ -40,6 +41,7 @@ def test_summary_statistics_are_those_of_the_runs(tmp_path):
     grid = np.array(summaries[0]['grid'])
     at_end = [resample(r['steps'], r['best_value'], grid[-1:])[0] for r in runs]
     assert summaries[0]['best_value']['mean'][-1] == pytest.approx(np.mean(at_end))
+    assert plot_summaries(summaries, tmp_path) == [tmp_path / 'acrobot.png']
     assert (tmp_path / 'acrobot.png').stat().st_size > 10_000
     json.loads((tmp_path / 'summary.json').read_text())  # strict JSON: no NaN literals
 
@@ -117,22 +119,30 @@ def test_experiment_set_names_are_names_not_paths(name):
         load_experiments(name)
 
 
+@pytest.mark.long
 def test_the_ray_backend_gives_the_local_backends_summaries(tmp_path):
     """On a local Ray instance the runs are the same runs: summaries identical to local,
     for SAP-GA and mountain-car rows, and for a Q-learning row whose seeds learn side by
-    side in one Ray task (one Ray CPU) while they ran alone locally (two workers)."""
+    side in one Ray task (one worker) while they ran alone locally (two workers).  One Ray
+    instance serves both (the engine uses a running one): starting Ray is most of the cost."""
+    import ray
     quiet = {'only': [1, 11], 'seeds': 2, 'scale': 0.005, 'workers': 2, 'log': lambda *a: None}
-    local = run_experiments('styles', tmp_path / 'local', **quiet)
-    ray = run_experiments('styles', tmp_path / 'ray', backend='ray', **quiet)
-    strip = [{k: v for k, v in s.items() if k != 'timing'} for s in local]
-    assert [{k: v for k, v in s.items() if k != 'timing'} for s in ray] == strip
+    ql = {'only': [3], 'seeds': 2, 'scale': 0.003, 'log': lambda *a: None}
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    try:
+        local = run_experiments('styles', tmp_path / 'local', **quiet)
+        on_ray = run_experiments('styles', tmp_path / 'ray', backend='ray', **quiet)
+        ql_local = run_experiments('table2', tmp_path / 'ql-local', workers=2, **ql)
+        ql_ray = run_experiments('table2', tmp_path / 'ql-ray', backend='ray', workers=1, **ql)
+    finally:
+        ray.shutdown()
+
+    def strip(summaries: list[dict]) -> list[dict]:
+        return [{k: v for k, v in s.items() if k != 'timing'} for s in summaries]
+    assert strip(on_ray) == strip(local)
     assert sorted(p.name for p in (tmp_path / 'ray' / 'runs').iterdir()) == sorted(
         p.name for p in (tmp_path / 'local' / 'runs').iterdir())
-    ql = {'only': [3], 'seeds': 2, 'scale': 0.003, 'log': lambda *a: None}
-    local = run_experiments('table2', tmp_path / 'ql-local', workers=2, **ql)
-    ray = run_experiments('table2', tmp_path / 'ql-ray', backend='ray', workers=1, **ql)
-    assert [{k: v for k, v in s.items() if k != 'timing'} for s in ray] == \
-        [{k: v for k, v in s.items() if k != 'timing'} for s in local]
+    assert strip(ql_ray) == strip(ql_local)
     lanes = [json.loads((tmp_path / d / 'runs' / '3-seed1.json').read_text())['run']['lanes']
              for d in ('ql-local', 'ql-ray')]
     assert lanes == [1, 2]

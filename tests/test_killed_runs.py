@@ -15,6 +15,8 @@ from pathlib import Path
 
 import pytest
 
+from sim_nodes.jit import COMPILING
+
 SAPGA = [sys.executable, '-m', 'sapga_ros.cli.main']
 # a small PDIP population: generations of ~20 k steps, so a save comes within a second
 SMALL = ['--problem', 'pdip', '--seed', '3', '--pop', '20', '--children', '4', '--l-min', '10',
@@ -26,11 +28,13 @@ def sapga(*args: object, timeout: float = 600) -> subprocess.CompletedProcess:
                           timeout=timeout, env={**os.environ})
 
 
-def wait_for(paths: list[Path], proc: subprocess.Popen, timeout: float) -> float:
-    """Seconds until every path exists (the run must still be going then)."""
+def wait_for(paths: list[Path], proc: subprocess.Popen, timeout: float) -> float | None:
+    """Seconds until every path exists; None if the run ended successfully first."""
     start = time.monotonic()
     while not all(p.exists() for p in paths):
-        assert proc.poll() is None, f'the run ended before its first save: {proc.stderr.read()}'
+        if proc.poll() == 0:
+            return None
+        assert proc.poll() is None, f'the run failed before its first save: {proc.stderr.read()}'
         assert time.monotonic() - start < timeout, f'no save within {timeout} s'
         time.sleep(0.05)
     return time.monotonic() - start
@@ -51,14 +55,24 @@ def log_rows(path: Path) -> list[dict]:
 
 def kill_and_resume(tmp_path: Path, budget: int, extra: list[str], after: float | None
                     ) -> dict:
-    """Train uninterrupted and, again, SIGKILLed after its first save (or after ``after``
-    seconds) and resumed; check the killed run's files and the resumed result; timings."""
-    t0 = time.monotonic()
-    full = tmp_path / 'full.json'
-    done = sapga('train', *extra, '--steps', budget, '--out', full)
-    assert done.returncode == 0, done.stderr
-    timings = {'uninterrupted_s': time.monotonic() - t0}
+    """Train SIGKILLed after its first save (or after ``after`` seconds) and resumed, and
+    again uninterrupted; check the killed run's files and the resumed result; timings.
 
+    A machine fast enough to finish the budget before the kill lands is no failure: the
+    budget is multiplied by 4 and both runs are done again, so the kill falls inside the run
+    on any machine."""
+    for _ in range(4):
+        timings = killed_run(tmp_path / f'budget{budget}', budget, extra, after)
+        if timings is not None:
+            return timings
+        budget *= 4
+    raise AssertionError(f'every run up to {budget // 4:,d} steps ended before it was killed')
+
+
+def killed_run(tmp_path: Path, budget: int, extra: list[str], after: float | None
+               ) -> dict | None:
+    """``kill_and_resume`` at one budget; None if the run ended before the kill."""
+    tmp_path.mkdir()
     killed = tmp_path / 'killed.json'
     t0 = time.monotonic()
     proc = subprocess.Popen([*SAPGA, 'train', *extra, '--steps', str(budget), '--out',
@@ -67,22 +81,27 @@ def kill_and_resume(tmp_path: Path, budget: int, extra: list[str], after: float 
     try:
         saves = [killed, killed.with_suffix('.log.csv'),
                  killed.with_suffix('.ckpt') / 'checkpoint.npz']
-        timings['first_save_s'] = wait_for(saves, proc, timeout=120)
+        timings = {'first_save_s': wait_for(saves, proc, timeout=120)}
         if after is not None:
             time.sleep(max(0.0, after - (time.monotonic() - t0)))
-        assert proc.poll() is None, 'the run ended before it was killed'
         proc.send_signal(signal.SIGKILL)
         proc.communicate(timeout=60)
     finally:
         proc.kill()
+    doc = json.loads(killed.read_text()) if killed.exists() else None
+    if proc.returncode == 0 or doc['meta']['steps'] >= budget:
+        return None                         # the whole budget ran before the kill
     timings['killed_after_s'] = time.monotonic() - t0
     assert proc.returncode == -signal.SIGKILL
-
-    doc = json.loads(killed.read_text())
-    assert doc['meta']['steps'] < budget                      # a policy of the killed run
     ev = sapga('eval', killed, '--json')
     assert ev.returncode == 0, ev.stderr
     assert json.loads(ev.stdout)['return'] == doc['meta']['value']
+
+    t0 = time.monotonic()
+    full = tmp_path / 'full.json'
+    done = sapga('train', *extra, '--steps', budget, '--out', full)
+    assert done.returncode == 0, done.stderr
+    timings['uninterrupted_s'] = time.monotonic() - t0
 
     t0 = time.monotonic()
     resumed = sapga('train', '--resume', '--out', killed, '--quiet')   # settings: the ckpt's
@@ -103,7 +122,7 @@ def test_a_killed_run_leaves_an_evaluable_policy_and_resumes_to_the_uninterrupte
     print(timings)
 
 
-@pytest.mark.slow
+@pytest.mark.long
 def test_kill_9_of_a_60_million_step_pdip_run_after_40_s_loses_nothing_on_resume(tmp_path):
     """Issue 7's acceptance: `sapga train --problem pdip --steps 60000000` killed after 40 s
     (default save period) leaves a policy `sapga eval` accepts and a checkpoint that
@@ -123,6 +142,8 @@ def test_sigterm_finishes_the_round_saves_and_exits_143(tmp_path):
                             text=True)
     try:
         first = proc.stderr.readline()        # the first progress line: training is under way
+        if first.rstrip('\n') == COMPILING:     # (after compiling, on a cold numba cache)
+            first = proc.stderr.readline()
         assert first.startswith('steps'), first + proc.stderr.read()
         proc.send_signal(signal.SIGTERM)
         stdout, stderr = proc.communicate(timeout=120)

@@ -19,7 +19,8 @@ from mcap_ros2.decoder import DecoderFactory
 
 from ros_helpers import executable, free_domain_id
 from sapga_ros.cli import main as cli
-from sapga_ros.launch import ChildExited, Supervisor, exit_code, run_launch
+from sapga_ros.launch import run_launch
+from sapga_ros.launch.supervisor import ChildExited, Supervisor, exit_code
 from sapga_ros.exemplars.policy import ExemplarPolicy
 from sim_nodes.problem import load_problem
 
@@ -59,7 +60,7 @@ def test_a_crashed_child_ends_the_launch_with_its_name_and_exit_code():
 
 SUPERVISED = '''
 import sys
-from sapga_ros.launch import Interrupted, Supervisor, exit_code
+from sapga_ros.launch.supervisor import Interrupted, Supervisor, exit_code
 polite = """
 import signal, sys, time
 def on_int(*a):

@@ -5,10 +5,10 @@ markers are recorded is checked on the launch's bags (tests/test_recording_launc
 from __future__ import annotations
 
 import threading
-import time
 
 import numpy as np
 import pytest
+from rclpy.parameter import Parameter
 from visualization_msgs.msg import Marker, MarkerArray
 
 from ros_helpers import PROBE_QOS, Probe, isolated_ros
@@ -45,6 +45,26 @@ class MarkerProbe(Probe):
             arrays = list(self.arrays)
         return {stamp_ns(a.markers[0]): {m.ns: m for m in a.markers}
                 for a in arrays if any(m.ns == ns for m in a.markers)}
+
+
+def arrays_before_a_sentinel(ros, sim: SimNode, probe: MarkerProbe) -> list[MarkerArray]:
+    """The marker arrays the probe got from ``sim`` before a sentinel array that the test
+    sends through the simulator's own marker publisher once the states seen so far are in.
+
+    Every node of the harness runs in one executor thread, so the probe holding a state
+    means the simulator has finished publishing it with its markers; one reliable DDS
+    writer delivers in order, so an array published then arrives before the sentinel.
+    """
+    assert sim._marker_pub.get_subscription_count() == 1
+    sentinel = Marker(ns='sentinel', id=len(probe.arrays))
+
+    def index() -> int | None:
+        with probe._marker_lock:
+            return next((i for i, a in enumerate(probe.arrays) if a.markers[:1] == [sentinel]),
+                        None)
+    sim._marker_pub.publish(MarkerArray(markers=[sentinel]))
+    ros.wait_for(lambda: index() is not None, 'the sentinel array')
+    return [a for a in probe.arrays[:index()] if a.markers[0].ns != 'sentinel']
 
 
 def xz(marker: Marker) -> list[tuple[float, float]]:
@@ -104,17 +124,21 @@ def test_a_model_without_a_drawing_publishes_no_markers(ros, monkeypatch):
     ros.wait_for(lambda: sim._stamped_sub.get_publisher_count() and probe.states, 'discovery')
     probe.answer(1.0, 0)
     ros.wait_for(lambda: len(probe.states) == 2, 'a step')
-    time.sleep(0.3)
-    assert probe.arrays == [] and sim._marker_pub.get_subscription_count() == 1
+    assert arrays_before_a_sentinel(ros, sim, probe) == []
 
 
 def test_markers_false_publishes_none(ros):
     problem = load_problem('acrobot')
     probe = ros.start(MarkerProbe, problem=problem)
-    ros.start(SimNode, params={'mode': 'lockstep', 'republish_period': 0.05, 'markers': False})
+    sim = ros.start(SimNode, params={'mode': 'lockstep', 'republish_period': 0.05,
+                                     'markers': False})
     ros.wait_for(lambda: len(probe.states) == 1, 'the first state')
-    time.sleep(0.3)
-    assert probe.arrays == []
+    assert arrays_before_a_sentinel(ros, sim, probe) == []
+    # the same wait sees markers once they are on: the check above can fail
+    sim.set_parameters([Parameter('markers', value=True)])
+    probe.answer(1.0, 0)
+    ros.wait_for(lambda: len(probe.states) == 2, 'a step')
+    assert len(arrays_before_a_sentinel(ros, sim, probe)) >= 1
 
 
 def test_the_policy_node_draws_the_exemplar_it_used(ros, tmp_path):

@@ -4,7 +4,7 @@ import pytest
 
 from sapga_ros.errors import PolicyFileError
 from sapga_ros.optim.qlearning import QTable, parse_json, qtable_from_document
-from sapga_ros.training.ql_run import train_ql
+from ql_run import train_ql
 from sapga_ros.training.loop import TrainConfig
 from sim_nodes.problem import load_problem
 

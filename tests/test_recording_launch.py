@@ -1,6 +1,7 @@
 """Nothing lost: recorded launches hold every message, exactly; hostile input on the way.
 
-``sapga launch swingup`` runs 3 lockstep episodes 10 times, each in a fresh ROS domain; every
+``sapga launch swingup`` runs 3 lockstep episodes 10 times (2 times unless ``--long``), each in
+a fresh ROS domain; every
 bag, read with rosbags' ``AnyReader`` (an independent reader), must hold exactly the
 episodes the offline evaluator computes: every start and end event, every reward, every
 state, every command (each answering its state) and the markers of every state, in order.
@@ -107,11 +108,13 @@ def stamp_of(msg) -> int:
     return msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
 
 
-def test_ten_lockstep_launches_record_every_message_exactly(tmp_path, policy_file):
-    """10 x `sapga launch swingup --episodes 3`: every bag is whole and exact."""
+@pytest.mark.parametrize('runs', [2, pytest.param(RUNS, marks=pytest.mark.long)])
+def test_lockstep_launches_record_every_message_exactly(tmp_path, policy_file, runs):
+    """2 (``make test``) or 10 (``make test-long``) x `sapga launch swingup --episodes 3`:
+    every bag is whole and exact."""
     path, offline = policy_file
     assert offline.reached and offline.steps == 62
-    for run in range(RUNS):
+    for run in range(runs):
         done = launch(['swingup', '--policy', str(path), '--out', f'run{run}', '--episodes',
                        str(EPISODES)], tmp_path)
         assert 'every lockstep episode is equal' in done.stdout, done.stdout[-3000:]
@@ -168,7 +171,7 @@ def test_the_gap_check_asks_for_the_markers_of_every_state_and_answer():
 def test_a_launch_whose_bag_is_incomplete_exits_1():
     """The swingup report fails (exit 1, the reason printed) when the bag lacks messages,
     even though every episode equals the offline one."""
-    from sapga_ros.launch import Supervisor
+    from sapga_ros.launch.supervisor import Supervisor
     from sapga_ros.launch.swingup import SwingupResult, print_swingup
 
     end = {'event': 'goal', 'episode': 1, 'step': 3, 'return': -3.0, 'delta_star': 0.1}

@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Sequence
 
 from sapga_ros.errors import SapgaError
-from sapga_ros.launch import LaunchError, Supervisor, exit_code
+from sapga_ros.launch.supervisor import LaunchError, Supervisor, exit_code
 from sapga_ros.launch.train_deploy import add_run_arguments, run_train_deploy, summary_lines
 from sim_nodes.problem import load_problem
 

@@ -113,7 +113,7 @@ def cmd_exemplars(args) -> int:
     from sapga_ros.evaluation.any_policy import policy_delta, run_policy_episode
     import numpy as np
 
-    from sapga_ros.exemplars.tools import exemplar_table, format_table
+    from sapga_ros.cli.exemplar_table import exemplar_table, format_table
     from sapga_ros.exemplars.policy import load_policy
     policy = load_policy(args.policy)
     delta = policy_delta(policy, args.delta)

@@ -21,7 +21,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from sapga_ros.launch import LaunchError, Supervisor
+from sapga_ros.launch.supervisor import LaunchError, Supervisor
 from sapga_ros.launch.ros_args import RosOptions
 from sapga_ros.recording.events import parse_event
 from sim_nodes.problem import Problem

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from sapga_ros.errors import SapgaError
-from sapga_ros.launch import LaunchError, Supervisor, find_executable, write_params_file
+from sapga_ros.launch.supervisor import LaunchError, Supervisor, find_executable, write_params_file
 from sapga_ros.launch.launch_node import LaunchRos
 from sapga_ros.recording.reader import read_recording
 from sapga_ros.recording.session import free_bag_path, utc_stamp

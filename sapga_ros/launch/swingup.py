@@ -39,7 +39,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Sequence
 
-from sapga_ros.launch import Supervisor, launch_main
+from sapga_ros.launch.supervisor import Supervisor, launch_main
 from sapga_ros.launch.launch_node import LaunchRos
 from sapga_ros.launch.ros_args import RosOptions, add_ros_arguments
 from sapga_ros.launch.stack import (DeployStack, StackOptions, episode_lines,  # noqa: F401

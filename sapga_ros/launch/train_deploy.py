@@ -26,7 +26,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Sequence
 
-from sapga_ros.launch import LaunchError, Supervisor, launch_main
+from sapga_ros.launch.supervisor import LaunchError, Supervisor, launch_main
 from sapga_ros.launch.ros_args import RosOptions, add_ros_arguments
 from sapga_ros.launch.swingup import (DeployStack, LaunchRos, StackOptions, episode_lines,
                                       event_summary, offline_episode, same_episode)

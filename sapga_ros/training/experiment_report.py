@@ -1,11 +1,11 @@
 """Summaries of an experiment's runs (SPEC 3.5): curves against steps averaged over seeds,
-the final measures, a Markdown table and the figures drawn like the paper's Figures 3 and 4.
+the final measures and a Markdown table.  The figures drawn from them, like the paper's
+Figures 3 and 4, are in ``sapga_ros.viz.summary_plot``.
 """
 from __future__ import annotations
 
 import math
 import warnings
-from pathlib import Path
 
 import numpy as np
 
@@ -93,42 +93,3 @@ def markdown_table(summaries: list[dict]) -> str:
                      f"| {f['delta_star_mean']:.4f} ± {f['delta_star_std']:.4f} "
                      f"| {s.get('timing', {}).get('steps_per_s_mean', math.nan) / 1e3:,.0f} k |")
     return '\n'.join(lines) + '\n'
-
-
-def plot_summaries(summaries: list[dict], out: Path) -> list[Path]:
-    """One figure per problem: best value, delta* and achieved fraction against steps."""
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
-    paths = []
-    groups: dict[str, list[dict]] = {}
-    for s in summaries:
-        groups.setdefault(s['problem'].split('_')[0], []).append(s)
-    for family, items in groups.items():
-        fig, axes = plt.subplots(1, 3, figsize=(14, 4))
-        for s in items:
-            x = np.array(s['grid']) / 1e6
-            style = s.get('style', 'state-action')
-            label = (f"#{s['id']} {s['method'].upper()} {s['problem']} delta={s['delta']}"
-                     + (f' {style}' if style != 'state-action' else ''))
-            for ax, key in zip(axes[:2], ('best_value', 'delta_star')):
-                m = np.array(s[key]['mean'], dtype=float)
-                sd = np.array(s[key]['std'], dtype=float)
-                ax.plot(x, m, label=label)
-                ax.fill_between(x, m - sd, m + sd, alpha=0.2)
-            axes[2].plot(x, s['achieved_fraction'], label=label)
-        axes[0].set_ylabel('best evaluated value')
-        axes[1].set_ylabel('delta* so far')
-        if any(v is not None and v > 0 for s in items for v in s['delta_star']['mean']):
-            axes[1].set_yscale('log')
-        axes[2].set_ylabel('fraction of runs that achieved delta')
-        for ax in axes:
-            ax.set_xlabel('total steps [millions]')
-        axes[0].legend(fontsize=7)
-        fig.suptitle(f'{family}: mean and standard deviation over seeds')
-        fig.tight_layout()
-        path = out / f'{family}.png'
-        fig.savefig(path, dpi=100)
-        plt.close(fig)
-        paths.append(path)
-    return paths

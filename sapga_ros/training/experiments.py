@@ -3,8 +3,9 @@ processes, each run's result written to ``DIR/runs/`` the moment it finishes.
 
 Rerunning with the same ``DIR`` skips the runs already there (resume after a kill); a run
 file of other settings is refused, never mixed in.  When every run is done the summaries
-(``summary.json``, ``summary.md``, ``runs.json``) and figures are written from the run files
-(``experiment_report``).  Each run is deterministic in its seed, so the order in which
+(``summary.json``, ``summary.md``, ``runs.json``) are written from the run files
+(``experiment_report``); the figures and ``report.md`` are drawn from them by
+``sapga_ros.viz.report``.  Each run is deterministic in its seed, so the order in which
 workers finish changes nothing.
 """
 from __future__ import annotations
@@ -23,7 +24,7 @@ from typing import Callable
 from sapga_ros.errors import ConfigError
 from sapga_ros.io.atomic import write_atomic
 from sapga_ros.io.bounded import read_bounded
-from sapga_ros.training.experiment_report import markdown_table, plot_summaries, summarise
+from sapga_ros.training.experiment_report import markdown_table, summarise
 from sapga_ros.training.experiment_set import (Experiment, LimitSearch, load_experiments,
                                                load_limits, run_seeds)
 from sapga_ros.optim.qlearner import LANE_BLOCK
@@ -263,6 +264,4 @@ def _summarise(exps, row_seeds, budgets, runs, out: Path, log) -> list[dict]:
     write_atomic(out / 'summary.json', json.dumps(summaries, indent=1))
     write_atomic(out / 'summary.md', markdown_table(summaries))
     write_atomic(out / 'runs.json', json.dumps(raw))
-    for path in plot_summaries(summaries, out):
-        log(f'figure: {path}')
     return summaries

@@ -4,9 +4,10 @@
 the Q-learning baseline) until the MDP-step budget is spent (checked after each ask/tell
 round, so a run simulates at most one generation, or one episode, more) or ``should_stop()``
 says so: it evaluates what ``ask()`` hands out in one parallel batch, tells the measures,
-logs a progress row per round (the optimizer's counters, ``achieved``, ``steps_per_s``),
-saves at least every ``checkpoint_seconds`` of wall time (and every ``checkpoint_every``
-rounds, if set) and at the end, and returns the best policy with its provenance in ``meta``.
+logs a progress row per round (the optimizer's counters, ``achieved``, ``steps_per_s``, time
+spent compiling kernels left out), saves at least every ``checkpoint_seconds`` of wall time
+(and every ``checkpoint_every`` rounds, if set) and at the end, and returns the best policy
+with its provenance in ``meta``.
 A save writes the checkpoint (``training/checkpoints.py``) and hands the best policy so far
 and the log to ``on_save``, which writes them where the caller keeps them: a killed run
 loses at most one period.  Same seed, same result, with or without checkpoint/resume.
@@ -34,6 +35,7 @@ from sapga_ros.optim.base import Optimizer
 from sapga_ros.optim.qlearner import QLearning, QlParams, learn_together
 from sapga_ros.optim.sapga import SapGA, SapgaParams
 from sapga_ros.training import checkpoints
+from sim_nodes.jit import compile_seconds
 from sim_nodes.params import DELTA, check, param
 from sim_nodes.problem import Problem, load_problem
 
@@ -195,7 +197,7 @@ def _rounds(config: TrainConfig, initial: list[ExemplarPolicy] = (),
     evaluator = Evaluator(problem, delta)
     opt, history = _start(config, problem, delta, list(initial))
     start = last_save = time.perf_counter()
-    steps_at_start = opt.steps
+    steps_at_start, compiled_at_start = opt.steps, compile_seconds()
     alt_star = min([math.inf] + [r['delta_star_alt'] for r in history[-1:]
                                  if r.get('delta_star_alt') is not None])
     while not (reasons := opt.stop(config.steps)):
@@ -213,8 +215,9 @@ def _rounds(config: TrainConfig, initial: list[ExemplarPolicy] = (),
         if problem.goal_alt_scale is not None and 'delta_star_alt' not in row:
             row['delta_star_alt'] = alt_star   # the alternative goal reading, same runs
         now = time.perf_counter()
+        busy = now - start - (compile_seconds() - compiled_at_start)   # compiling: not a rate
         row.update(achieved=row['delta_star'] <= delta,
-                   steps_per_s=(opt.steps - steps_at_start) / max(now - start, 1e-9))
+                   steps_per_s=(opt.steps - steps_at_start) / max(busy, 1e-9))
         history.append(row)
         if progress:
             progress(row)

@@ -200,7 +200,7 @@ def limits(out: Path) -> list[str]:
 
 def write_report(out: Path, with_figure5: bool = True) -> Path:
     """Write ``out/report.md`` from the directory's files; return its path."""
-    from sapga_ros.training.experiment_report import plot_summaries
+    from sapga_ros.viz.summary_plot import plot_summaries
     if not (out / 'summary.json').is_file():
         raise SapgaError(f'{out}: no summary.json (not an experiment directory, or its runs '
                          'have not finished)')
