@@ -10,11 +10,11 @@ from typing import Any
 
 import yaml
 
-from sapga_ros.errors import ConfigError
+from sapga_ros.errors import ConfigError, UnknownProblemError
 from sapga_ros.exemplars.styles import STYLES
 from sapga_ros.io.bounded import load_yaml, read_bounded
 from sim_nodes.goal import alternative_goal
-from sim_nodes.problem import config_dir, load_problem
+from sim_nodes.problem import Problem, config_dir, load_problem
 
 MAX_SET_BYTES = 1 << 20
 METHODS = ('sapga', 'ql', 'cmaes')
@@ -72,6 +72,14 @@ def _text(e: dict, key: str, where: str, default: str, max_len: int) -> str:
     return value
 
 
+def _problem(name: str, where: str) -> Problem:
+    """The problem a row names; an unknown name is refused naming the row."""
+    try:
+        return load_problem(name)
+    except UnknownProblemError as exc:
+        raise ConfigError(f'{where}.problem: {exc}') from None
+
+
 def _experiment(e: Any, where: str) -> Experiment:
     if not isinstance(e, dict):
         raise ConfigError(f'{where}: expected a mapping')
@@ -100,7 +108,7 @@ def _experiment(e: Any, where: str) -> Experiment:
     if exp.variant not in VARIANTS:
         raise ConfigError(f'{where}.variant: unknown variant {exp.variant!r} '
                           f'(known: {", ".join(VARIANTS)})')
-    load_problem(exp.problem)
+    _problem(exp.problem, where)
     if exp.method not in METHODS:
         raise ConfigError(f'{where}.method: expected one of {", ".join(METHODS)}, '
                           f'got {exp.method!r}')
@@ -147,7 +155,7 @@ def load_limits(name: str) -> list[LimitSearch]:
                              _count(e.get('width', 50_000), f'{where}.width', 1, 10 ** 7),
                              _count(e.get('cells', 32), f'{where}.cells', 1, 1000),
                              _count(e.get('per_cell', 4), f'{where}.per_cell', 1, 1000))
-        problem = load_problem(search.problem)
+        problem = _problem(search.problem, where)
         if search.alternative_goal and alternative_goal(problem) is None:
             raise ConfigError(f'{where}: {search.problem} has no alternative goal reading')
         out.append(search)
