@@ -84,6 +84,17 @@ def write_inside(directory: str | os.PathLike, name: str,
     return write_atomic(Path(directory) / name, content)
 
 
+def _figure_writer(fig, path: str | os.PathLike, dpi: int) -> Callable[[BinaryIO], None]:
+    """Write a matplotlib figure in the format its file name says (PNG by default)."""
+    fmt = Path(path).suffix[1:].lower() or 'png'
+    return lambda f: fig.savefig(f, format=fmt, dpi=dpi)
+
+
 def save_figure(fig, directory: str | os.PathLike, name: str, dpi: int = 100) -> Path:
-    """Save a matplotlib figure as ``directory/name`` (PNG) through ``write_inside``."""
-    return write_inside(directory, name, lambda f: fig.savefig(f, format='png', dpi=dpi))
+    """Save a matplotlib figure as ``directory/name`` through ``write_inside``."""
+    return write_inside(directory, name, _figure_writer(fig, name, dpi))
+
+
+def save_figure_file(fig, path: str | os.PathLike, dpi: int = 100) -> Path:
+    """Save a matplotlib figure at a path the user named, through ``write_atomic``."""
+    return write_atomic(path, _figure_writer(fig, path, dpi))
