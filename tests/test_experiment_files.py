@@ -285,3 +285,24 @@ def test_the_limit_file_is_strict_json_and_reads_back(tmp_path):
     strict(done.stdout)
     back = read_limit(path)
     assert back['delta'] == doc['delta'] and len(back['actions']) == back['step']
+
+
+def test_an_address_where_something_else_listens_is_one_line(tmp_path):
+    """A TCP server that is not Ray (it closes at once): refused, never a hang in Ray."""
+    import socket
+    import threading
+    server = socket.create_server(('127.0.0.1', 0))
+    port = server.getsockname()[1]
+
+    def serve():
+        for _ in range(4):
+            conn, _ = server.accept()
+            conn.close()
+    threading.Thread(target=serve, daemon=True).start()
+    try:
+        done = sapga('experiment', 'styles', '--out', str(tmp_path / 'o'), '--only', '11',
+                     '--seeds', '1', '--scale', '0.005', '--backend', 'ray', '--address',
+                     f'127.0.0.1:{port}')
+    finally:
+        server.close()
+    one_line_error(done, 'not a Ray cluster')

@@ -1,9 +1,11 @@
 """The address of a Ray cluster (``sapga experiment --backend ray --address``), checked
 before Ray is asked: ``HOST:PORT``, ``ray://HOST:PORT`` (Ray Client) or ``auto``.
 
-Ray retries an address it cannot reach for ever; ``reach`` opens (and closes) one TCP
-connection to it first, bounded by ``CONNECT_TIMEOUT_S``, so an unreachable cluster is one
-line and exit status 2 instead of a hang.
+Ray retries an address it cannot reach for ever; ``reach`` first opens one TCP connection
+to it, bounded by ``CONNECT_TIMEOUT_S``, and checks that a gRPC server answers there (Ray's
+GCS and Ray Client both speak gRPC: an HTTP/2 server answers a client's connection preface
+with a SETTINGS frame), so an unreachable address, or one where something else listens, is
+one line and exit status 2 instead of a hang.
 """
 from __future__ import annotations
 
@@ -13,6 +15,8 @@ import socket
 from sapga_ros.errors import ConfigError
 
 CONNECT_TIMEOUT_S = 10.0
+_SETTINGS = 0x4                 # HTTP/2 frame type
+_PREFACE = b'PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n' + bytes([0, 0, 0, _SETTINGS, 0, 0, 0, 0, 0])
 _HOST = r'(?:[A-Za-z0-9](?:[A-Za-z0-9-]{0,62})(?:\.[A-Za-z0-9](?:[A-Za-z0-9-]{0,62}))*' \
         r'|\[[0-9A-Fa-f:.]{2,45}\])'
 _ADDRESS = re.compile(rf'(ray://)?({_HOST}):([0-9]{{1,5}})')
@@ -36,8 +40,16 @@ def reach(address: str, timeout: float = CONNECT_TIMEOUT_S) -> None:
     if target is None:
         return
     try:
-        socket.create_connection(target, timeout=timeout).close()
+        with socket.create_connection(target, timeout=timeout) as conn:
+            conn.settimeout(timeout)
+            conn.sendall(_PREFACE)
+            head = b''
+            while len(head) < 9 and (chunk := conn.recv(9 - len(head))):
+                head += chunk
     except OSError as exc:
         reason = 'timed out' if isinstance(exc, TimeoutError) else (exc.strerror or exc)
         raise ConfigError(f'--address {address}: no Ray cluster reachable there '
                           f'({reason}; waited at most {timeout:.0f} s)') from None
+    if len(head) < 9 or head[3] != _SETTINGS:
+        raise ConfigError(f'--address {address}: something answers there, but not a Ray '
+                          'cluster (no gRPC server)')
