@@ -11,6 +11,7 @@ from dataclasses import asdict
 from typing import Any
 
 from sapga_ros.analysis.limit import Limit
+from sapga_ros.errors import DataFileError
 from sapga_ros.io import schema
 from sapga_ros.io.jsonfile import read_json
 
@@ -43,8 +44,8 @@ def read_limit(path: str | os.PathLike) -> dict[str, Any]:
            'alternative_goal': schema.boolean(doc.get('alternative_goal', False),
                                               f'{where}: alternative_goal')}
     if len(out['actions']) != out['step']:
-        raise schema.DataFileError(f'{where}: actions: expected {out["step"]} (step) items, '
-                                   f'got {len(out["actions"])}')
+        raise DataFileError(f'{where}: actions: expected {out["step"]} (step) items, '
+                            f'got {len(out["actions"])}')
     if 'seconds' in doc:
         out['seconds'] = schema.number(doc['seconds'], f'{where}: seconds', 0)
     return out

@@ -13,9 +13,17 @@ import argparse
 import math
 from pathlib import Path
 
-from sapga_ros.cli.args import _int_at_least, nonneg_int, positive_int
+from sapga_ros.cli.args import nonneg_int, positive_int
 from sapga_ros.errors import SapgaError
 from sapga_ros.training.experiment_set import MAX_SCALE, MAX_SEEDS
+
+
+def seed_count(text: str) -> int:
+    """An argparse type: a number of seeds in [1, MAX_SEEDS]."""
+    value = positive_int(text)
+    if value > MAX_SEEDS:
+        raise argparse.ArgumentTypeError(f'expected at most {MAX_SEEDS} seeds, got {text!r}')
+    return value
 
 
 def scale_value(text: str) -> float:
@@ -36,8 +44,7 @@ def add_experiment_arguments(ex: argparse.ArgumentParser) -> None:
     ex.add_argument('dir', nargs='?', help='with report: the experiment directory')
     ex.add_argument('--out', help='directory for runs/, summary.json, report.md, figures')
     ex.add_argument('--only', help='comma-separated experiment ids, e.g. 2,4')
-    ex.add_argument('--seeds', type=_int_at_least(1, f'an integer in [1, {MAX_SEEDS}]',
-                                                  MAX_SEEDS),
+    ex.add_argument('--seeds', type=seed_count,
                     help='seeds per experiment (default: the set\'s, 20 for table2)')
     ex.add_argument('--scale', type=scale_value, default=1.0,
                     help='multiply every step budget (e.g. 0.1 for a quick look)')

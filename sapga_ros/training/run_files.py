@@ -10,7 +10,6 @@ run it again (absent or damaged), or refuse to mix in a run of other settings.
 """
 from __future__ import annotations
 
-import math
 import os
 import stat
 from pathlib import Path
@@ -93,7 +92,3 @@ def run_state(path: Path, key: dict, seed: int) -> tuple[dict | None, str]:
         raise ConfigError(f'{path}: a run of other settings ({str(stored)[:200]}), not '
                           f'{key}; use another --out')
     return record, ''
-
-
-def finite_or_none(x: float) -> float | None:
-    return x if math.isfinite(x) else None
