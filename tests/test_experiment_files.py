@@ -227,8 +227,9 @@ def test_figure_names_from_data_stay_inside_dir(tmp_path):
     (['--scale', '1e300'], '--scale'),
     (['--scale', 'nan'], '--scale'),
     (['--scale', '0'], '--scale'),
+    (['--workers', '100000'], '--workers'),
 ])
-def test_seeds_and_scale_are_bounded(tmp_path, args, word):
+def test_seeds_scale_and_workers_are_bounded(tmp_path, args, word):
     done = sapga('experiment', 'table2', '--out', str(tmp_path / 'o'), *args)
     assert done.returncode == 2 and word in done.stderr and 'Traceback' not in done.stderr
     assert not (tmp_path / 'o').exists()

@@ -18,12 +18,21 @@ from sapga_ros.errors import SapgaError
 from sapga_ros.training.experiment_set import MAX_SCALE, MAX_SEEDS
 
 
-def seed_count(text: str) -> int:
-    """An argparse type: a number of seeds in [1, MAX_SEEDS]."""
-    value = positive_int(text)
-    if value > MAX_SEEDS:
-        raise argparse.ArgumentTypeError(f'expected at most {MAX_SEEDS} seeds, got {text!r}')
-    return value
+MAX_WORKERS = 4096
+
+
+def _at_most(parse, high: int, what: str):
+    """An argparse type: ``parse`` of the text, at most ``high``."""
+    def check(text: str) -> int:
+        value = parse(text)
+        if value > high:
+            raise argparse.ArgumentTypeError(f'expected at most {high} {what}, got {text!r}')
+        return value
+    return check
+
+
+seed_count = _at_most(positive_int, MAX_SEEDS, 'seeds')
+worker_count = _at_most(nonneg_int, MAX_WORKERS, 'workers')
 
 
 def scale_value(text: str) -> float:
@@ -48,7 +57,7 @@ def add_experiment_arguments(ex: argparse.ArgumentParser) -> None:
                     help='seeds per experiment (default: the set\'s, 20 for table2)')
     ex.add_argument('--scale', type=scale_value, default=1.0,
                     help='multiply every step budget (e.g. 0.1 for a quick look)')
-    ex.add_argument('--workers', type=nonneg_int, default=0,
+    ex.add_argument('--workers', type=worker_count, default=0,
                     help='parallel runs (default 0: every core)')
     ex.add_argument('--backend', choices=('local', 'ray'), default='local',
                     help='local worker processes, or tasks on a Ray cluster')
