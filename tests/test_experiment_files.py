@@ -307,3 +307,29 @@ def test_an_address_where_something_else_listens_is_one_line(tmp_path):
     finally:
         server.close()
     one_line_error(done, 'not a Ray cluster')
+
+
+def test_a_fifo_run_file_or_linked_runs_folder_is_refused_before_any_run(exp_dir, tmp_path):
+    """What a run file cannot replace is refused up front, in one line: a FIFO (reading it
+    would block), and a runs/ folder that is a link out of DIR."""
+    import os
+    path = exp_dir / 'runs' / '11-seed1.json'
+    path.unlink()
+    os.mkfifo(path)
+    done = sapga('experiment', 'styles', '--out', str(exp_dir), '--only', '11', '--seeds',
+                 '2', '--scale', '0.005', '--workers', '1')
+    one_line_error(done, '11-seed1.json', 'not a regular file')
+    path.unlink()
+    elsewhere = tmp_path / 'elsewhere'
+    (exp_dir / 'runs').rename(elsewhere)
+    (exp_dir / 'runs').symlink_to(elsewhere)
+    done = sapga('experiment', 'styles', '--out', str(exp_dir), '--only', '11', '--seeds',
+                 '2', '--scale', '0.005', '--workers', '1')
+    one_line_error(done, 'runs', 'not a directory of this experiment')
+    assert sorted(p.name for p in elsewhere.iterdir()) == ['11-seed0.json']
+
+
+def test_a_folder_or_device_among_the_limits_is_one_line_from_report(exp_dir):
+    (exp_dir / 'limits' / 'acrobot.json').mkdir()
+    one_line_error(sapga('experiment', 'report', str(exp_dir)), 'acrobot.json',
+                   'not a regular file')
