@@ -3,7 +3,9 @@
 One YAML file per problem is the single source of truth (SPEC 1): state layout, ROS
 interface, physical parameters, action set, bounds, goal area and episode settings.  YAML
 is read with ``yaml.safe_load``; numbers may be written as multiples of pi ('3pi/2') and are
-parsed by a regular expression, never evaluated.
+parsed by a regular expression, never evaluated.  The checks beyond parsing (the ``ros:``
+section, size bounds, physics that must give numbers) are ``problem_checks.py``'s; this file
+stays over 300 lines as the one parser of every section, read top to bottom.
 """
 from __future__ import annotations
 

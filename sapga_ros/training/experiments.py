@@ -9,7 +9,6 @@ workers finish changes nothing.
 """
 from __future__ import annotations
 
-import math
 import multiprocessing
 import os
 import sys
@@ -23,9 +22,8 @@ from sapga_ros.errors import ConfigError, DataFileError
 from sapga_ros.io.atomic import write_atomic
 from sapga_ros.io.jsonfile import dumps, write_json
 from sapga_ros.training.experiment_report import markdown_table, plot_summaries, summarise
-from sapga_ros.training.experiment_set import (MAX_SCALE, MAX_SEEDS, MAX_STEPS, Experiment,
-                                               LimitSearch, load_experiments, load_limits,
-                                               run_seeds)
+from sapga_ros.training.experiment_checks import check_request, subdir
+from sapga_ros.training.experiment_set import MAX_STEPS, Experiment, LimitSearch, run_seeds
 from sapga_ros.training.run_files import read_run, run_path as _run_path, run_state
 from sapga_ros.optim.qlearner import LANE_BLOCK
 
@@ -98,46 +96,6 @@ class _Progress:
             self.bar.close()
 
 
-Request = tuple[list[Experiment], int, list[LimitSearch]]
-
-
-def _check_request(name: str, only: list[int] | None, seeds: int | None, scale: float,
-                   backend: str, address: str | None) -> Request:
-    """The experiments, seed count and limit searches of the request, every part of the
-    set and of the options checked before anything runs."""
-    if backend not in ('local', 'ray'):
-        raise ConfigError(f'unknown backend {str(backend)[:40]!r} (known: local, ray)')
-    exps, default_seeds = load_experiments(name)
-    searches = load_limits(name)
-    if only:
-        unknown = set(only) - {e.id for e in exps}
-        if unknown:
-            raise ConfigError(f'no experiment {sorted(unknown)[:10]} in {name}')
-        exps = [e for e in exps if e.id in only]
-    if seeds is not None and (isinstance(seeds, bool) or not isinstance(seeds, int)
-                              or not 1 <= seeds <= MAX_SEEDS):
-        raise ConfigError(f'--seeds must be a whole number in [1, {MAX_SEEDS}], '
-                          f'got {str(seeds)[:40]}')
-    if isinstance(scale, bool) or not isinstance(scale, (int, float)) or \
-            not (math.isfinite(scale) and 0 < scale <= MAX_SCALE):
-        raise ConfigError(f'--scale must be a number in (0, {MAX_SCALE:g}], got {scale}')
-    if backend == 'ray' and address:
-        from sapga_ros.training.ray_address import parse_address
-        parse_address(address)
-    return exps, default_seeds if seeds is None else seeds, searches
-
-
-def _subdir(out: Path, name: str) -> Path:
-    """``out/name``, made if absent; a symbolic link or a file there is refused (every
-    output stays inside ``out``)."""
-    path = out / name
-    if path.is_symlink() or (path.exists() and not path.is_dir()):
-        raise ConfigError(f'{path}: not a directory of this experiment (a link or a file); '
-                          'remove it or use another --out')
-    path.mkdir(parents=True, exist_ok=True)
-    return path
-
-
 def run_experiments(name: str, out: str | os.PathLike, only: list[int] | None = None,
                     seeds: int | None = None, scale: float = 1.0,
                     workers: int | None = None, log=print, backend: str = 'local',
@@ -148,11 +106,11 @@ def run_experiments(name: str, out: str | os.PathLike, only: list[int] | None = 
     cluster at ``address``; a local Ray instance when it is None).  The set, the options and
     the stored files are checked before any run starts; a damaged run file is reported and
     run again."""
-    exps, n_seeds, searches = _check_request(name, only, seeds, scale, backend, address)
+    exps, n_seeds, searches = check_request(name, only, seeds, scale, backend, address)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    _subdir(out, 'runs')
-    _subdir(out, 'limits')
+    subdir(out, 'runs')
+    subdir(out, 'limits')
     budgets = {e.id: min(MAX_STEPS, max(1000, int(e.steps * scale))) for e in exps}
     row_seeds = {e.id: e.seeds if e.seeds is not None and seeds is None else n_seeds
                  for e in exps}
