@@ -6,7 +6,7 @@ The root ``SapgaError`` and the configuration errors belong to the environment l
 from sim_nodes.errors import ConfigError, SapgaError, UnknownProblemError
 
 __all__ = ['SapgaError', 'ConfigError', 'UnknownProblemError', 'PolicyFileError',
-           'CheckpointError', 'McapError']
+           'CheckpointError', 'McapError', 'DataFileError']
 
 
 class PolicyFileError(SapgaError):
@@ -19,3 +19,7 @@ class CheckpointError(SapgaError):
 
 class McapError(SapgaError):
     """A recording cannot be read."""
+
+
+class DataFileError(SapgaError):
+    """A data file the package wrote earlier (a run, a summary, a limit) is malformed."""

@@ -2,7 +2,8 @@
 
 ``delta(s)`` is the smallest delta with s in S_delta: the largest of the scaled deviations
 |s_i - best_i| / scale_i (circular on angles), or infinity when a coordinate with a fixed
-bound (the PDIP's |x| <= 2) is outside it.  A run achieves delta when delta* <= delta.
+bound (the PDIP's |x| <= 2) is outside it, or when a coordinate is not a number (a nan
+state is never in the goal area).  A run achieves delta when delta* <= delta.
 """
 import dataclasses
 import math
@@ -28,7 +29,7 @@ def goal_delta(s, best, inv_scale, fixed, is_angle):
     worst = 0.0
     for i in range(s.shape[0]):
         d = circular_diff(s[i], best[i]) if is_angle[i] else math.fabs(s[i] - best[i])
-        if d > fixed[i]:
+        if not d <= fixed[i]:      # also a nan state: never in the goal area
             return math.inf
         d *= inv_scale[i]
         if d > worst:

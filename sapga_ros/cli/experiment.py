@@ -10,12 +10,41 @@ and the physical limit of a problem.
 from __future__ import annotations
 
 import argparse
-import json
-from dataclasses import asdict
+import math
 from pathlib import Path
 
-from sapga_ros.cli.args import nonneg_int, nonneg_number, positive_int
+from sapga_ros.cli.args import nonneg_int, positive_int
 from sapga_ros.errors import SapgaError
+from sapga_ros.training.experiment_set import MAX_SCALE, MAX_SEEDS
+
+
+MAX_WORKERS = 4096
+
+
+def _at_most(parse, high: int, what: str):
+    """An argparse type: ``parse`` of the text, at most ``high``."""
+    def check(text: str) -> int:
+        value = parse(text)
+        if value > high:
+            raise argparse.ArgumentTypeError(f'expected at most {high} {what}, got {text!r}')
+        return value
+    return check
+
+
+seed_count = _at_most(positive_int, MAX_SEEDS, 'seeds')
+worker_count = _at_most(nonneg_int, MAX_WORKERS, 'workers')
+
+
+def scale_value(text: str) -> float:
+    """An argparse type: a step-budget factor in (0, MAX_SCALE]."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and 0 < value <= MAX_SCALE):
+        raise argparse.ArgumentTypeError(f'expected a number in (0, {MAX_SCALE:g}], '
+                                         f'got {text[:40]!r}')
+    return value
 
 
 def add_experiment_arguments(ex: argparse.ArgumentParser) -> None:
@@ -24,11 +53,11 @@ def add_experiment_arguments(ex: argparse.ArgumentParser) -> None:
     ex.add_argument('dir', nargs='?', help='with report: the experiment directory')
     ex.add_argument('--out', help='directory for runs/, summary.json, report.md, figures')
     ex.add_argument('--only', help='comma-separated experiment ids, e.g. 2,4')
-    ex.add_argument('--seeds', type=positive_int, help='seeds per experiment (default: the '
-                                                       'set\'s, 20 for table2)')
-    ex.add_argument('--scale', type=nonneg_number, default=1.0,
+    ex.add_argument('--seeds', type=seed_count,
+                    help='seeds per experiment (default: the set\'s, 20 for table2)')
+    ex.add_argument('--scale', type=scale_value, default=1.0,
                     help='multiply every step budget (e.g. 0.1 for a quick look)')
-    ex.add_argument('--workers', type=nonneg_int, default=0,
+    ex.add_argument('--workers', type=worker_count, default=0,
                     help='parallel runs (default 0: every core)')
     ex.add_argument('--backend', choices=('local', 'ray'), default='local',
                     help='local worker processes, or tasks on a Ray cluster')
@@ -80,7 +109,8 @@ def add_limit_arguments(li: argparse.ArgumentParser) -> None:
 
 def cmd_limit(args) -> int:
     from sapga_ros.analysis.limit import beam_limit
-    from sapga_ros.io.atomic import write_atomic
+    from sapga_ros.analysis.limit_file import limit_document
+    from sapga_ros.io.jsonfile import dumps, write_json
     from sim_nodes.goal import alternative_goal
     from sim_nodes.problem import load_problem
     problem = load_problem(args.problem)
@@ -90,11 +120,11 @@ def cmd_limit(args) -> int:
         problem = alternative_goal(problem)
     limit = beam_limit(problem, width=args.width, cells=args.cells, per_cell=args.per_cell,
                        seed=args.seed)
-    doc = asdict(limit)
+    doc = limit_document(limit)
     if args.out:
-        write_atomic(Path(args.out), json.dumps(doc))
+        write_json(Path(args.out), doc)
     if args.json:
-        print(json.dumps({k: v for k, v in doc.items() if k != 'actions'}))
+        print(dumps({k: v for k, v in doc.items() if k != 'actions'}))
     else:
         print(f'{problem.name}: smallest delta found {limit.delta:.6f} at step {limit.step} '
               f'({limit.steps_simulated:,d} MDP steps simulated; width {limit.width}, '

@@ -1,10 +1,17 @@
 """Atomic file writes: a crash or a kill never leaves half a file where a good one was, and a
 device, FIFO or socket at the path is never replaced by a file (``/dev/null`` as an output
-stays a device)."""
+stays a device).
+
+The new content is written to a fresh temporary file (``O_EXCL``) beside the path and
+renamed onto it: a symbolic link at the path is replaced, never written through.
+``write_inside`` writes a file named by data (a problem name in a summary, say) into a
+directory: the name must be a plain file name, so the output cannot leave the directory.
+"""
 from __future__ import annotations
 
 import errno
 import os
+import re
 import stat
 import tempfile
 from pathlib import Path
@@ -63,3 +70,31 @@ def write_atomic(path: str | os.PathLike, content: str | bytes | Callable[[Binar
         Path(tmp).unlink(missing_ok=True)
         raise
     return path
+
+
+_PLAIN_NAME = re.compile(r'[A-Za-z0-9_][A-Za-z0-9._-]{0,199}')
+
+
+def write_inside(directory: str | os.PathLike, name: str,
+                 content: str | bytes | Callable[[BinaryIO], None]) -> Path:
+    """``write_atomic`` of ``directory/name``; ValueError unless ``name`` is a plain file
+    name (letters, digits, ``._-``; no separator, no leading dot)."""
+    if not isinstance(name, str) or not _PLAIN_NAME.fullmatch(name) or '..' in name:
+        raise ValueError(f'not a plain file name: {str(name)[:60]!r}')
+    return write_atomic(Path(directory) / name, content)
+
+
+def _figure_writer(fig, path: str | os.PathLike, dpi: int) -> Callable[[BinaryIO], None]:
+    """Write a matplotlib figure in the format its file name says (PNG by default)."""
+    fmt = Path(path).suffix[1:].lower() or 'png'
+    return lambda f: fig.savefig(f, format=fmt, dpi=dpi)
+
+
+def save_figure(fig, directory: str | os.PathLike, name: str, dpi: int = 100) -> Path:
+    """Save a matplotlib figure as ``directory/name`` through ``write_inside``."""
+    return write_inside(directory, name, _figure_writer(fig, name, dpi))
+
+
+def save_figure_file(fig, path: str | os.PathLike, dpi: int = 100) -> Path:
+    """Save a matplotlib figure at a path the user named, through ``write_atomic``."""
+    return write_atomic(path, _figure_writer(fig, path, dpi))

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from typing import Iterable
 
 import numpy as np
 
@@ -26,10 +27,29 @@ def _nulls(a: np.ndarray) -> list:
     return [None if not math.isfinite(v) else float(v) for v in a]
 
 
-def summarise(exp: Experiment, runs: list[dict], budget: int) -> dict:
+def _mean_std(values: list[float]) -> tuple[float, float]:
+    """Mean and standard deviation (nan for no values, or when one is not finite)."""
+    if not values:
+        return math.nan, math.nan
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore', RuntimeWarning)
+        return float(np.mean(values)), float(np.std(values))
+
+
+def summarise(exp: Experiment, runs: Iterable[dict], budget: int) -> dict:
+    """The summary of an experiment's runs (checked run records, ``training.run_files``),
+    taken one at a time: only their curves on the grid and final measures are kept.  A run
+    counts as achieved when its delta* is a number <= delta (never a nan)."""
     grid = np.linspace(budget / GRID_POINTS, budget, GRID_POINTS)
-    best = np.array([resample(r['steps'], r['best_value'], grid) for r in runs])
-    dstar = np.array([resample(r['steps'], r['delta_star'], grid) for r in runs])
+    best_rows, dstar_rows, finals, seeds, seconds = [], [], [], [], 0.0
+    for r in runs:
+        best_rows.append(resample(r['steps'], r['best_value'], grid))
+        dstar_rows.append(resample(r['steps'], r['delta_star'], grid))
+        finals.append(r['final'])
+        seeds.append(r['seed'])
+        seconds += r.get('seconds', math.nan)
+    best = np.array(best_rows).reshape(len(finals), GRID_POINTS)
+    dstar = np.array(dstar_rows).reshape(len(finals), GRID_POINTS)
     dstar = np.where(np.isfinite(dstar), dstar, np.nan)
     achieved = (dstar <= exp.delta).astype(float)
 
@@ -37,34 +57,39 @@ def summarise(exp: Experiment, runs: list[dict], budget: int) -> dict:
         with warnings.catch_warnings():
             warnings.simplefilter('ignore', RuntimeWarning)  # all-nan columns: no run yet
             return {'mean': _nulls(np.nanmean(a, axis=0)), 'std': _nulls(np.nanstd(a, axis=0))}
-    finals = [r['final'] for r in runs]
-    final = {'best_value_mean': float(np.mean([f['best_value'] for f in finals])),
-             'best_value_std': float(np.std([f['best_value'] for f in finals])),
-             'delta_star_mean': float(np.mean([f['delta_star'] for f in finals])),
-             'delta_star_std': float(np.std([f['delta_star'] for f in finals])),
-             'achieved': int(sum(f['achieved'] for f in finals)),
+    best_final = [f['best_value'] for f in finals]
+    dstar_final = [f['delta_star'] for f in finals]
+    best_mean, best_std = _mean_std(best_final)
+    dstar_mean, dstar_std = _mean_std(dstar_final)
+    final = {'best_value_mean': best_mean, 'best_value_std': best_std,
+             'delta_star_mean': dstar_mean, 'delta_star_std': dstar_std,
+             'achieved': sum(_reaches(d, exp.delta) for d in dstar_final),
              'runs': len(finals),
-             'best_value_ci95': bootstrap_ci([f['best_value'] for f in finals]),
-             'delta_star_ci95': bootstrap_ci([f['delta_star'] for f in finals])}
+             'best_value_ci95': bootstrap_ci(best_final),
+             'delta_star_ci95': bootstrap_ci(dstar_final)}
     for key in ('delta_star_alt', 'greedy_delta_star'):
-        values = [f[key] for f in finals if f.get(key) is not None]
-        if len(values) == len(finals):
-            final.update({f'{key}_mean': float(np.mean(values)),
-                          f'{key}_std': float(np.std(values)),
+        values = [f[key] for f in finals if f.get(key) is not None and math.isfinite(f[key])]
+        if finals and len(values) == len(finals):
+            mean, std = _mean_std(values)
+            final.update({f'{key}_mean': mean, f'{key}_std': std,
                           f'{key}_ci95': bootstrap_ci(values)})
             if key == 'delta_star_alt':
-                final['achieved_alt'] = int(sum(v <= exp.delta for v in values))
+                final['achieved_alt'] = sum(_reaches(v, exp.delta) for v in values)
     return {'id': exp.id, 'problem': exp.problem, 'method': exp.method, 'delta': exp.delta,
             'style': exp.style, 'variant': exp.variant, 'paper': exp.paper,
             'group': exp.group,
-            'steps': budget, 'seeds': [r['seed'] for r in runs], 'grid': grid.tolist(),
+            'steps': budget, 'seeds': seeds, 'grid': grid.tolist(),
             'best_value': stat(best), 'delta_star': stat(dstar),
             'achieved_fraction': achieved.mean(axis=0).tolist(), 'final': final,
             # wall-clock speed of the runs: the one measure that differs between machines
-            'timing': {'steps_per_s_mean': float(np.mean([f.get('steps_per_s', math.nan)
-                                                          for f in finals])),
-                       'seconds_total': float(sum(r.get('seconds', math.nan)
-                                                  for r in runs))}}
+            'timing': {'steps_per_s_mean': _mean_std([f.get('steps_per_s', math.nan)
+                                                      for f in finals])[0],
+                       'seconds_total': seconds}}
+
+
+def _reaches(delta_star: float, delta: float) -> bool:
+    """Whether a run's delta* achieves ``delta`` (a nan never does)."""
+    return bool(math.isfinite(delta_star) and delta_star <= delta)
 
 
 def bootstrap_ci(values: list[float], level: float = 0.95, resamples: int = 10_000,

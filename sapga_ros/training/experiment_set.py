@@ -9,20 +9,23 @@ from typing import Any
 
 import yaml
 
-from sapga_ros.errors import ConfigError
+from sapga_ros.errors import ConfigError, UnknownProblemError
 from sapga_ros.exemplars.styles import STYLES
 from sapga_ros.io.bounded import load_yaml, read_bounded
 from sim_nodes.goal import alternative_goal
 from sim_nodes.jit import compile_seconds
 from sim_nodes.params import DELTA
-from sim_nodes.problem import config_dir, load_problem
+from sim_nodes.problem import Problem, config_dir, load_problem
 
 MAX_SET_BYTES = 1 << 20
 METHODS = ('sapga', 'ql', 'cmaes')
 CMAES_POP = 100        # CMA-ES candidates per generation in experiments (batches use the engine)
 MAX_SEEDS = 10_000
 MAX_STEPS = 10 ** 12
+MAX_EXPERIMENTS = 1000
+MAX_SCALE = 1000.0     # --scale (multiplier of every step budget) at most
 _NAME_RE = re.compile(r'^[a-z0-9][a-z0-9_-]*$')
+_WORD_RE = re.compile(r'[A-Za-z0-9][A-Za-z0-9_-]{0,39}')
 
 
 @dataclass(frozen=True)
@@ -49,9 +52,39 @@ def _count(value: Any, where: str, low: int, high: int) -> int:
     return value
 
 
+_SET_KEYS = ('name', 'seeds', 'experiments', 'limits')
+_EXPERIMENT_KEYS = ('id', 'problem', 'delta', 'method', 'steps', 'style', 'paper', 'group',
+                    'variant', 'seeds')
+_LIMIT_KEYS = ('problem', 'alternative_goal', 'width', 'cells', 'per_cell')
+
+
+def _known_keys(doc: dict, known: tuple[str, ...], where: str) -> None:
+    """ConfigError for a key not in ``known`` (a misspelt setting is not ignored)."""
+    unknown = [str(k)[:40] for k in doc if k not in known]
+    if unknown:
+        raise ConfigError(f'{where}: unknown key {unknown[0]!r} (known: {", ".join(known)})')
+
+
+def _text(e: dict, key: str, where: str, default: str, max_len: int) -> str:
+    value = e.get(key, default)
+    if not isinstance(value, str) or len(value) > max_len:
+        raise ConfigError(f'{where}.{key}: expected a text of at most {max_len} characters, '
+                          f'got {str(value)[:40]!r}')
+    return value
+
+
+def _problem(name: str, where: str) -> Problem:
+    """The problem a row names; an unknown name is refused naming the row."""
+    try:
+        return load_problem(name)
+    except UnknownProblemError as exc:
+        raise ConfigError(f'{where}.problem: {exc}') from None
+
+
 def _experiment(e: Any, where: str) -> Experiment:
     if not isinstance(e, dict):
         raise ConfigError(f'{where}: expected a mapping')
+    _known_keys(e, _EXPERIMENT_KEYS, where)
     for key in ('id', 'problem', 'delta', 'method', 'steps'):
         if key not in e:
             raise ConfigError(f'{where}: missing {key!r}')
@@ -62,15 +95,19 @@ def _experiment(e: Any, where: str) -> Experiment:
     exp = Experiment(_count(e['id'], f'{where}.id', 0, MAX_SEEDS), str(e['problem'])[:80],
                      float(delta), str(e['method'])[:40],
                      _count(e['steps'], f'{where}.steps', 1, MAX_STEPS),
-                     str(e.get('style', 'state-action'))[:40], str(e.get('paper', ''))[:300],
-                     str(e.get('group', 'paper'))[:40], str(e.get('variant', 'paper'))[:40],
+                     _text(e, 'style', where, 'state-action', 40),
+                     _text(e, 'paper', where, '', 300), _text(e, 'group', where, 'paper', 40),
+                     _text(e, 'variant', where, 'paper', 40),
                      None if e.get('seeds') is None else
                      _count(e['seeds'], f'{where}.seeds', 1, MAX_SEEDS))
+    if not _WORD_RE.fullmatch(exp.group):
+        raise ConfigError(f'{where}.group: expected a word (letters, digits, _ and -), '
+                          f'got {exp.group!r}')
     from sapga_ros.optim.sapga import VARIANTS
     if exp.variant not in VARIANTS:
         raise ConfigError(f'{where}.variant: unknown variant {exp.variant!r} '
                           f'(known: {", ".join(VARIANTS)})')
-    load_problem(exp.problem)
+    _problem(exp.problem, where)
     if exp.method not in METHODS:
         raise ConfigError(f'{where}.method: expected one of {", ".join(METHODS)}, '
                           f'got {exp.method!r}')
@@ -100,15 +137,25 @@ def load_limits(name: str) -> list[LimitSearch]:
     path = config_dir() / 'experiments' / f'{name}.yaml'
     doc = _set_document(name)
     out = []
-    for i, e in enumerate(doc.get('limits') or []):
+    limits = doc.get('limits')
+    if limits is not None and not isinstance(limits, list):
+        raise ConfigError(f'{path}: limits: expected a list of searches, got '
+                          f'{str(limits)[:40]!r}')
+    for i, e in enumerate(limits or []):
         where = f'{path}: limits[{i}]'
         if not isinstance(e, dict) or not isinstance(e.get('problem'), str):
             raise ConfigError(f'{where}: expected a mapping with a problem')
-        search = LimitSearch(e['problem'][:80], bool(e.get('alternative_goal', False)),
+        _known_keys(e, _LIMIT_KEYS, where)
+        alt = e.get('alternative_goal', False)
+        if not isinstance(alt, bool):
+            raise ConfigError(f'{where}.alternative_goal: expected true or false, '
+                              f'got {str(alt)[:40]!r}')
+        search = LimitSearch(_text(e, 'problem', where, '', 80), alt,
                              _count(e.get('width', 50_000), f'{where}.width', 1, 10 ** 7),
                              _count(e.get('cells', 32), f'{where}.cells', 1, 1000),
                              _count(e.get('per_cell', 4), f'{where}.per_cell', 1, 1000))
-        if search.alternative_goal and alternative_goal(load_problem(search.problem)) is None:
+        problem = _problem(search.problem, where)
+        if search.alternative_goal and alternative_goal(problem) is None:
             raise ConfigError(f'{where}: {search.problem} has no alternative goal reading')
         out.append(search)
     return out
@@ -129,6 +176,9 @@ def _set_document(name: str) -> dict:
     if not isinstance(doc, dict) or not isinstance(doc.get('experiments'), list) or \
             not doc['experiments']:
         raise ConfigError(f'{path}: expected a mapping with a non-empty experiments list')
+    _known_keys(doc, _SET_KEYS, str(path))
+    if len(doc['experiments']) > MAX_EXPERIMENTS:
+        raise ConfigError(f'{path}: experiments: at most {MAX_EXPERIMENTS} rows')
     return doc
 
 

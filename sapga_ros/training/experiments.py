@@ -10,8 +10,6 @@ workers finish changes nothing.
 """
 from __future__ import annotations
 
-import json
-import math
 import multiprocessing
 import os
 import sys
@@ -19,21 +17,22 @@ import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import asdict
 from pathlib import Path
-from typing import Callable
+from typing import BinaryIO, Callable, Iterator
 
-from sapga_ros.errors import ConfigError
+from sapga_ros.errors import ConfigError, DataFileError
 from sapga_ros.io.atomic import write_atomic
-from sapga_ros.io.bounded import read_bounded
+from sapga_ros.io.jsonfile import dumps, write_json
 from sapga_ros.training.experiment_report import markdown_table, summarise
-from sapga_ros.training.experiment_set import (Experiment, LimitSearch, load_experiments,
-                                               load_limits, run_seeds)
+from sapga_ros.training.experiment_checks import check_request, subdir
+from sapga_ros.training.experiment_set import MAX_STEPS, Experiment, LimitSearch, run_seeds
+from sapga_ros.training.run_files import read_run, run_path as _run_path, run_state
 from sapga_ros.optim.qlearner import LANE_BLOCK
 
-MAX_RUN_BYTES = 64 << 20
+MAX_RUNS = 100_000           # runs of one invocation at most
 
 
 def run_path(out: Path, exp: Experiment, seed: int) -> Path:
-    return out / 'runs' / f'{exp.id}-seed{seed}.json'
+    return _run_path(out, exp.id, seed)
 
 
 def run_key(name: str, exp: Experiment, seed: int, budget: int) -> dict:
@@ -42,22 +41,6 @@ def run_key(name: str, exp: Experiment, seed: int, budget: int) -> dict:
     settings = {k: v for k, v in asdict(exp).items()
                 if k not in ('paper', 'group', 'seeds')}
     return {'set': name, 'experiment': settings, 'seed': seed, 'steps': budget}
-
-
-def _finished(path: Path, key: dict) -> dict | None:
-    """The run stored at ``path`` if it is one of ``key``'s settings; None if absent."""
-    if not path.exists():
-        return None
-    try:
-        doc = json.loads(read_bounded(path, MAX_RUN_BYTES))
-    except (OSError, ValueError, RecursionError) as exc:
-        raise ConfigError(f'{path}: unreadable run file ({str(exc)[:80]}); remove it to '
-                          'run it again') from None
-    if not isinstance(doc, dict) or doc.get('key') != key or \
-            not isinstance(doc.get('run'), dict):
-        raise ConfigError(f'{path}: a run of other settings ({str(doc.get("key"))[:200]}), '
-                          f'not {key}; use another --out')
-    return doc['run']
 
 
 def _job(args: tuple) -> list[tuple[tuple, dict]]:
@@ -121,81 +104,86 @@ def run_experiments(name: str, out: str | os.PathLike, only: list[int] | None = 
     """Run (a part of) an experiment set, resuming from ``out/runs``; write the summaries.
 
     ``backend``: ``local`` (worker processes on this machine) or ``ray`` (tasks of the Ray
-    cluster at ``address``; a local Ray instance when it is None)."""
-    if backend not in ('local', 'ray'):
-        raise ConfigError(f'unknown backend {str(backend)[:40]!r} (known: local, ray)')
-    exps, default_seeds = load_experiments(name)
-    if only:
-        unknown = set(only) - {e.id for e in exps}
-        if unknown:
-            raise ConfigError(f'no experiment {sorted(unknown)} in {name}')
-        exps = [e for e in exps if e.id in only]
-    n_seeds = default_seeds if seeds is None else seeds
-    if not scale > 0 or not math.isfinite(scale):
-        raise ConfigError(f'--scale must be a positive number, got {scale}')
+    cluster at ``address``; a local Ray instance when it is None).  The set, the options and
+    the stored files are checked before any run starts; a damaged run file is reported and
+    run again."""
+    exps, n_seeds, searches = check_request(name, only, seeds, scale, backend, address)
     out = Path(out)
-    (out / 'runs').mkdir(parents=True, exist_ok=True)
-    (out / 'limits').mkdir(exist_ok=True)
-    budgets = {e.id: max(1000, int(e.steps * scale)) for e in exps}
-    runs: dict[tuple[int, int], dict] = {}
-    pending = []
+    out.mkdir(parents=True, exist_ok=True)
+    subdir(out, 'runs')
+    subdir(out, 'limits')
+    budgets = {e.id: min(MAX_STEPS, max(1000, int(e.steps * scale))) for e in exps}
     row_seeds = {e.id: e.seeds if e.seeds is not None and seeds is None else n_seeds
                  for e in exps}
+    if sum(row_seeds.values()) > MAX_RUNS:
+        raise ConfigError(f'{sum(row_seeds.values())} runs requested, at most {MAX_RUNS} '
+                          'in one invocation (fewer --seeds or --only)')
+    done: dict[tuple[int, int], dict] = {}
+    pending = []
     for exp in exps:
         for seed in range(row_seeds[exp.id]):
             key = run_key(name, exp, seed, budgets[exp.id])
-            run = _finished(run_path(out, exp, seed), key)
+            run, damaged = run_state(run_path(out, exp, seed), key, seed)
             if run is None:
+                if damaged:
+                    log(f'{damaged[:300]}; running it again')
                 pending.append((exp, seed, budgets[exp.id]))
             else:
-                runs[exp.id, seed] = run
-    log(f'{name}: {len(exps)} experiments x {n_seeds} seeds; {len(runs)} runs done before, '
+                done[exp.id, seed] = run['final']
+    log(f'{name}: {len(exps)} experiments x {n_seeds} seeds; {len(done)} runs done before, '
         f'{len(pending)} to run')
+    if backend == 'ray' and address and pending:
+        from sapga_ros.training.ray_address import reach
+        reach(address)
     started = time.perf_counter()
-    reused = len(runs)
-    progress = _Progress(len(runs) + len(pending), len(runs), log)
+    reused = len(done)
+    progress = _Progress(len(done) + len(pending), len(done), log)
     workers = workers or os.cpu_count() or 1
     try:
         for finished in _execute(plan_jobs(pending, workers), workers, backend, address):
             for (exp, seed, budget), run in finished:
                 key = run_key(name, exp, seed, budget)
-                write_atomic(run_path(out, exp, seed), json.dumps({'key': key, 'run': run}))
-                runs[exp.id, seed] = run
+                write_json(run_path(out, exp, seed), {'key': key, 'run': run})
+                done[exp.id, seed] = run['final']
                 progress.step(f'#{exp.id} seed {seed}: delta* '
                               f"{run['final']['delta_star']:.4f}")
     finally:
         progress.close()
-    for search in load_limits(name):
+    for search in searches:
         _limit(out, search, scale, log)
     command = ' '.join(['sapga experiment', name, '--out', str(out)]
                        + (['--only', ','.join(map(str, only))] if only else [])
                        + (['--seeds', str(seeds)] if seeds is not None else [])
                        + (['--scale', str(scale)] if scale != 1.0 else [])
                        + (['--backend', backend] if backend != 'local' else []))
-    write_atomic(out / 'experiment.json', json.dumps({
+    write_json(out / 'experiment.json', {
         'name': name, 'command': command, 'seeds': n_seeds, 'scale': scale,
         'backend': backend, 'wall_s': time.perf_counter() - started,
-        'runs_run': len(runs) - reused, 'runs_reused': reused}))
-    return _summarise(exps, row_seeds, budgets, runs, out, log)
+        'runs_run': len(done) - reused, 'runs_reused': reused})
+    return _summarise(name, exps, row_seeds, budgets, out, log)
 
 
 def _limit(out: Path, search: LimitSearch, scale: float, log) -> None:
-    """Run a physical-limit search into ``out/limits/`` unless its file is there."""
+    """Run a physical-limit search into ``out/limits/`` unless a sound file is there."""
     from sapga_ros.analysis.limit import beam_limit
+    from sapga_ros.analysis.limit_file import limit_document, read_limit
     from sim_nodes.goal import alternative_goal
     from sim_nodes.problem import load_problem
     path = out / 'limits' / search.file_name
     width = max(200, int(search.width * min(scale, 1.0)))
-    if path.exists():
-        return
+    if path.exists() or path.is_symlink():
+        try:
+            read_limit(path)
+            return
+        except DataFileError as exc:
+            log(f'{str(exc)[:300]}; searching it again')
     problem = load_problem(search.problem)
     if search.alternative_goal:
         problem = alternative_goal(problem)
     start = time.perf_counter()
     limit = beam_limit(problem, width=width, cells=search.cells, per_cell=search.per_cell)
-    doc = {**asdict(limit), 'alternative_goal': search.alternative_goal,
-           'seconds': time.perf_counter() - start}
-    write_atomic(path, json.dumps(doc))
+    write_json(path, {**limit_document(limit), 'alternative_goal': search.alternative_goal,
+                      'seconds': time.perf_counter() - start})
     log(f'limit of {search.problem}{" (alternative goal)" if search.alternative_goal else ""}: '
         f'delta {limit.delta:.5f} at step {limit.step}')
 
@@ -247,11 +235,31 @@ def _execute_ray(jobs: list[tuple], workers: int, address: str | None):
             ray.shutdown()
 
 
-def _summarise(exps, row_seeds, budgets, runs, out: Path, log) -> list[dict]:
-    summaries, raw = [], {}
-    for exp in exps:
-        exp_runs = [runs[exp.id, seed] for seed in range(row_seeds[exp.id])]
-        s = summarise(exp, exp_runs, budgets[exp.id])
+def _summarise(name: str, exps: list[Experiment], row_seeds: dict, budgets: dict,
+               out: Path, log) -> list[dict]:
+    """Write summary.json, summary.md, and runs.json from the run files, one
+    run in memory at a time (``runs.json`` is written as the runs are read)."""
+    summaries = []
+
+    def runs(f: BinaryIO, exp: Experiment) -> Iterator[dict]:
+        for i, seed in enumerate(range(row_seeds[exp.id])):
+            path = run_path(out, exp, seed)
+            key, run = read_run(path, seed)
+            if key != run_key(name, exp, seed, budgets[exp.id]):
+                raise ConfigError(f'{path}: changed while the experiment ran (other settings)')
+            f.write(((', ' if i else '') + dumps(run)).encode())
+            yield run
+
+    def write_runs(f: BinaryIO) -> None:
+        f.write(b'{')
+        for i, exp in enumerate(exps):
+            f.write(f'{", " if i else ""}"{exp.id}": ['.encode())
+            summaries.append(summarise(exp, runs(f, exp), budgets[exp.id]))
+            f.write(b']')
+        f.write(b'}')
+
+    write_atomic(out / 'runs.json', write_runs)
+    for exp, s in zip(exps, summaries):
         f = s['final']
         style = f'{exp.style} {exp.variant}' if exp.method == 'sapga' else ''
         log(f'#{exp.id} {exp.method} {style} on {exp.problem}, delta {exp.delta}, '
@@ -259,9 +267,6 @@ def _summarise(exps, row_seeds, budgets, runs, out: Path, log) -> list[dict]:
             f"{f['achieved']}/{f['runs']}, best value {f['best_value_mean']:.1f} +- "
             f"{f['best_value_std']:.1f}, delta* {f['delta_star_mean']:.4f} +- "
             f"{f['delta_star_std']:.4f}")
-        summaries.append(s)
-        raw[str(exp.id)] = exp_runs
-    write_atomic(out / 'summary.json', json.dumps(summaries, indent=1))
+    write_json(out / 'summary.json', summaries, indent=1)
     write_atomic(out / 'summary.md', markdown_table(summaries))
-    write_atomic(out / 'runs.json', json.dumps(raw))
     return summaries

@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from sapga_ros.io.atomic import save_figure_file
 from sapga_ros.recording.episodes import Episode
 from sim_nodes.geometry import drawing, goal_band, goal_states, picture, track
 
@@ -106,7 +107,7 @@ def plot_episode(ep: Episode, problem: Any, out_path: str, title: str,
 
     fig = episode_figure(ep, problem, title, goal_delta)
     try:
-        fig.savefig(out_path, dpi=100)
+        save_figure_file(fig, out_path, dpi=100)
     finally:
         plt.close(fig)
 

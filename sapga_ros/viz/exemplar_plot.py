@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from sapga_ros.io.atomic import save_figure_file
 from sapga_ros.evaluation.state_selector import StateSelector
 from sapga_ros.exemplars.policy import ExemplarPolicy
 from sapga_ros.viz.episode_plot import break_wraps
@@ -104,5 +105,5 @@ def plot_exemplars(policy: ExemplarPolicy, episode, counts: np.ndarray, out: str
     fig.suptitle(f'{problem.name}, {policy.style}: {len(policy)} exemplars, return '
                  f'{episode.ret:.1f}, delta* {episode.delta_star:.4f}, {episode.steps} steps')
     fig.tight_layout()
-    fig.savefig(out, dpi=110)
+    save_figure_file(fig, out, dpi=110)
     plt.close(fig)

@@ -8,32 +8,24 @@ the report, since no Table 2 row runs mountain car.
 """
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from sapga_ros.errors import SapgaError
 from sapga_ros.evaluation.evaluator import Evaluator
+from sapga_ros.analysis.limit_file import delta_text, read_limit
 from sapga_ros.exemplars.policy import policy_from_document
-from sapga_ros.io.atomic import write_atomic
-from sapga_ros.io.bounded import read_bounded
+from sapga_ros.io.atomic import save_figure, write_atomic
+from sapga_ros.training.report_files import read_info, read_summary
+from sapga_ros.training.run_files import read_run, run_path
 
-MAX_JSON_BYTES = 256 << 20
 FIG5_STEPS = 1_000_000      # MDP steps of each Figure 5 run (SAP-GA and Q-learning), seed 0
 
 
-def _json(path: Path) -> Any:
-    try:
-        return json.loads(read_bounded(path, MAX_JSON_BYTES))
-    except (OSError, ValueError, RecursionError) as exc:
-        raise SapgaError(f'{path}: cannot read ({str(exc)[:80]})') from None
-
-
 def _pm(mean: float | None, std: float | None, digits: int) -> str:
-    if mean is None or not math.isfinite(mean):
+    if mean is None or std is None or not math.isfinite(mean):
         return 'n/a'
     return f'{mean:.{digits}f} ± {std:.{digits}f}'
 
@@ -75,13 +67,14 @@ def _best_runs(out: Path, summary: dict, count: int) -> list[tuple[dict, dict]]:
     """The ``count`` runs of an experiment with the best final value, with their policy."""
     runs = []
     for seed in summary['seeds']:
-        path = out / 'runs' / f"{summary['id']}-seed{seed}.json"
+        path = run_path(out, summary['id'], seed)
         if path.exists():
-            run = _json(path)['run']
-            if isinstance(run.get('policy'), dict):
+            run = read_run(path, seed)[1]
+            if math.isfinite(run['final']['best_value']) and 'policy' in run:
                 runs.append(run)
-    runs.sort(key=lambda r: -r['final']['best_value'])
-    return [(r, r['policy']) for r in runs[:count]]
+                runs.sort(key=lambda r: -r['final']['best_value'])
+                del runs[count:]                   # one run beyond those kept in memory
+    return [(r, r['policy']) for r in runs]
 
 
 def _trajectory_figure(out: Path, name: str, episodes: list, problem, delta: float,
@@ -96,8 +89,7 @@ def _trajectory_figure(out: Path, name: str, episodes: list, problem, delta: flo
         draw_strobe(ax, problem, ep.states, delta)
         ax.set_title(title, fontsize='small')
     fig.tight_layout()
-    path = out / name
-    fig.savefig(path, dpi=100)
+    path = save_figure(fig, out, name)
     plt.close(fig)
     return path
 
@@ -173,8 +165,7 @@ def figure5(out: Path) -> list[str]:
         ax.set_xlabel('x [m]')
         ax.set_ylabel('v [m/step]')
     fig.tight_layout()
-    path = out / 'figure5_mountain_car.png'
-    fig.savefig(path, dpi=100)
+    path = save_figure(fig, out, 'figure5_mountain_car.png')
     plt.close(fig)
     return ['**Figure 5** (mountain car; action +1 in the dark area, -1 in the light; '
             f'triangles and squares: exemplars; red: the trajectory).  Trained for this '
@@ -190,9 +181,9 @@ def limits(out: Path) -> list[str]:
     lines = ['| problem | goal box | smallest δ found | at step | search |',
              '|---|---|---|---|---|']
     for path in files:
-        d = _json(path)
-        box = 'alternative (\\|v\\| ≤ 32δ)' if d.get('alternative_goal') else 'as printed'
-        lines.append(f"| {d['problem']} | {box} | {d['delta']:.5f} | {d['step']} "
+        d = read_limit(path)
+        box = 'alternative (\\|v\\| ≤ 32δ)' if d['alternative_goal'] else 'as printed'
+        lines.append(f"| {d['problem']} | {box} | {delta_text(d['delta'])} | {d['step']} "
                      f"| beam {d['width']:,d}, {d['cells']} cells, "
                      f"{d['steps_simulated']:,d} steps |")
     return lines + ['']
@@ -204,8 +195,8 @@ def write_report(out: Path, with_figure5: bool = True) -> Path:
     if not (out / 'summary.json').is_file():
         raise SapgaError(f'{out}: no summary.json (not an experiment directory, or its runs '
                          'have not finished)')
-    summaries = _json(out / 'summary.json')
-    info = _json(out / 'experiment.json') if (out / 'experiment.json').is_file() else {}
+    summaries = read_summary(out / 'summary.json')
+    info = read_info(out / 'experiment.json') if (out / 'experiment.json').exists() else {}
     lines = [f"# Experiment report: {info.get('name', out.name)}", '']
     if info:
         lines += [f"Command: `{info.get('command', '')}`", '',

@@ -14,6 +14,8 @@ def plot_summaries(summaries: list[dict], out: Path) -> list[Path]:
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
+
+    from sapga_ros.io.atomic import save_figure
     paths = []
     groups: dict[str, list[dict]] = {}
     for s in summaries:
@@ -41,8 +43,7 @@ def plot_summaries(summaries: list[dict], out: Path) -> list[Path]:
         axes[0].legend(fontsize=7)
         fig.suptitle(f'{family}: mean and standard deviation over seeds')
         fig.tight_layout()
-        path = out / f'{family}.png'
-        fig.savefig(path, dpi=100)
+        path = save_figure(fig, out, f'{family}.png')
         plt.close(fig)
         paths.append(path)
     return paths

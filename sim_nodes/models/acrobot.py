@@ -30,6 +30,8 @@ from sim_nodes.models.common import clip, wrap_angle
 from sim_nodes.models.trig import sin, sincos
 
 PARAMS = ('m1', 'm2', 'l1', 'lc1', 'lc2', 'I1', 'I2', 'g', 'max_theta1_dot', 'max_theta2_dot')
+# physics parameters that must be > 0 (the problem YAML is refused otherwise)
+POSITIVE = ('m1', 'm2', 'l1', 'lc1', 'lc2', 'I1', 'I2', 'max_theta1_dot', 'max_theta2_dot')
 # indices into the packed vector [dt, substeps, *PARAMS]
 DT, SUBSTEPS, M1, M2, L1, LC1, LC2, I1, I2, G, MAX_W1, MAX_W2 = range(12)
 

@@ -18,6 +18,8 @@ from sim_nodes.models.common import clip
 from sim_nodes.models.trig import cos
 
 PARAMS = ('power', 'gravity', 'x_min', 'x_max', 'v_max')
+# physics parameters that must be > 0 (the problem YAML is refused otherwise)
+POSITIVE = ('v_max',)
 DT, SUBSTEPS, POWER, GRAVITY, X_MIN, X_MAX, V_MAX = range(7)
 
 

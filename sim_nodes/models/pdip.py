@@ -31,6 +31,8 @@ from sim_nodes.models.common import clip, wrap_angle
 from sim_nodes.models.trig import sin, sincos
 
 PARAMS = ('m0', 'm1', 'm2', 'l1', 'l2', 'g', 'x_max', 'v_max', 'theta_dot_max', 'rail_penalty')
+# physics parameters that must be > 0 (the problem YAML is refused otherwise)
+POSITIVE = ('m0', 'm1', 'm2', 'l1', 'l2', 'x_max', 'v_max', 'theta_dot_max')
 DT, SUBSTEPS, M0, M1, M2, L1, L2, G, X_MAX, V_MAX, W_MAX, RAIL = range(12)
 
 

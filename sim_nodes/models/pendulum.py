@@ -27,6 +27,8 @@ from sim_nodes.models.common import clip, wrap_angle
 from sim_nodes.models.trig import cos, sin
 
 PARAMS = ('m', 'l', 'g', 'b', 'max_theta_dot')
+# physics parameters that must be > 0 (the problem YAML is refused otherwise)
+POSITIVE = ('m', 'l', 'max_theta_dot')
 DT, SUBSTEPS, M, L, G, B, MAX_W = range(7)
 
 

@@ -1,0 +1,335 @@
+"""The files of an experiment directory read as hostile input: run files, summary.json,
+experiment.json, limits/*.json, the set YAML and the options.  Each bad file or value is
+one line naming the file and the field (exit status 2 from the command), a damaged run
+file is run again on resume, nothing is written outside the directory or through a link,
+and every file written is strict JSON."""
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from process_helpers import sapga_peak_rss
+from sapga_ros.training.experiments import run_experiments
+from sapga_ros.training.run_files import MAX_RUN_BYTES
+
+SAPGA = [sys.executable, '-m', 'sapga_ros.cli.main']
+QUICK = {'only': [11], 'seeds': 2, 'scale': 0.005, 'workers': 1}   # mountain car, 150 k steps
+
+
+def sapga(*args: str, env: dict | None = None) -> subprocess.CompletedProcess:
+    import os
+    return subprocess.run([*SAPGA, *args], capture_output=True, text=True, timeout=300,
+                          env={**os.environ, **(env or {})})
+
+
+def one_line_error(done: subprocess.CompletedProcess, *words: str) -> str:
+    """The command failed with exit status 2 and one line naming ``words``."""
+    assert done.returncode == 2, done.stderr
+    assert 'Traceback' not in done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1, done.stderr
+    for word in words:
+        assert word in lines[0], lines[0]
+    return lines[0]
+
+
+def strict(text: str):
+    """``json.loads`` that refuses NaN and Infinity."""
+    def refuse(name):
+        raise ValueError(f'{name} in strict JSON')
+    return json.loads(text, parse_constant=refuse)
+
+
+@pytest.fixture(scope='module')
+def base(tmp_path_factory) -> Path:
+    """An experiment directory of two quick mountain-car runs."""
+    out = tmp_path_factory.mktemp('exp') / 'base'
+    run_experiments('styles', out, log=lambda *a: None, **QUICK)
+    return out
+
+
+@pytest.fixture
+def exp_dir(base, tmp_path) -> Path:
+    out = tmp_path / 'exp'
+    shutil.copytree(base, out)
+    return out
+
+
+def _run_doc(out: Path) -> dict:
+    return json.loads((out / 'runs' / '11-seed0.json').read_text())
+
+
+def _with_run(doc: dict, **changes) -> str:
+    run = {**doc['run'], **changes}
+    return json.dumps({'key': doc['key'], 'run': run})
+
+
+DAMAGED = {
+    'empty run': lambda d: json.dumps({'key': d['key'], 'run': {}}),
+    'steps text': lambda d: _with_run(d, steps='abc'),
+    'best value text': lambda d: _with_run(d, final={**d['run']['final'],
+                                                     'best_value': 'high'}),
+    'lengths differ': lambda d: _with_run(d, best_value=d['run']['best_value'] * 2),
+    'nan': lambda d: _with_run(d, best_value=[float('nan')] * len(d['run']['steps'])),
+    'infinity': lambda d: _with_run(d, final={**d['run']['final'],
+                                              'delta_star': float('inf')}),
+    'no key': lambda d: json.dumps({'run': d['run']}),
+    'not json': lambda d: '{"key": ',
+    'values bomb': lambda d: '[' + '[],' * 2_000_000 + '[]]',
+    'too large': lambda d: ' ' * (MAX_RUN_BYTES + 1),
+}
+
+
+@pytest.mark.parametrize('damage', DAMAGED)
+def test_a_damaged_run_file_is_reported_and_run_again(exp_dir, damage):
+    """Resume: one line names the file (and the field), the run is trained again, the new
+    file equals what the seed gives, and the summaries hold no bare NaN."""
+    before = _run_doc(exp_dir)
+    path = exp_dir / 'runs' / '11-seed0.json'
+    path.write_text(DAMAGED[damage](before))
+    lines: list[str] = []
+    run_experiments('styles', exp_dir, log=lines.append, **QUICK)
+    reported = [line for line in lines if str(path) in line]
+    assert len(reported) == 1 and reported[0].endswith('running it again'), lines
+    assert '1 runs done before, 1 to run' in '\n'.join(lines)
+    after = strict(path.read_text())
+    assert after['run']['final']['best_value'] == before['run']['final']['best_value']
+    assert after['run']['policy']['exemplars'] == before['run']['policy']['exemplars']
+    for name in ('summary.json', 'runs.json', 'experiment.json'):
+        strict((exp_dir / name).read_text())
+
+
+def test_a_run_file_that_names_a_field_says_which(exp_dir):
+    doc = _run_doc(exp_dir)
+    (exp_dir / 'runs' / '11-seed1.json').write_text(_with_run(doc, seed=1, steps='abc'))
+    lines: list[str] = []
+    run_experiments('styles', exp_dir, log=lines.append, **QUICK)
+    assert any('11-seed1.json: run.steps: expected a list' in line for line in lines), lines
+
+
+def test_a_link_in_place_of_a_run_file_is_replaced_not_followed(exp_dir, tmp_path):
+    """A planted link is not read as a run: the run is trained again and the link replaced
+    by a file; the link's target is untouched."""
+    target = tmp_path / 'elsewhere.json'
+    original = (exp_dir / 'runs' / '11-seed0.json').read_text()
+    target.write_text(original)
+    path = exp_dir / 'runs' / '11-seed0.json'
+    path.unlink()
+    path.symlink_to(target)
+    lines: list[str] = []
+    run_experiments('styles', exp_dir, log=lines.append, **QUICK)
+    assert any('a symbolic link' in line for line in lines)
+    assert not path.is_symlink() and target.read_text() == original
+    assert strict(path.read_text())['run']['seed'] == 0
+
+
+SUMMARY_DAMAGE = {
+    'not a list': ('{}', 'expected a list'),
+    'empty object': ('[{}]', "missing field 'grid'"),
+    'problem a path': (None, 'problem'),
+    'grid lengths': (None, 'best_value.mean'),
+    'string value': (None, 'final.best_value_mean'),
+    'nan': (None, 'not valid JSON'),
+    'deep': ('[' * 100_000 + ']' * 100_000, 'summary.json'),
+    'huge': (' ' * (17 << 20), 'larger than'),
+}
+
+
+def _damaged_summary(out: Path, damage: str) -> str:
+    text, _ = SUMMARY_DAMAGE[damage]
+    if text is not None:
+        return text
+    doc = json.loads((out / 'summary.json').read_text())
+    s = doc[0]
+    if damage == 'problem a path':
+        s['problem'] = str(out.parent / 'outside' / 'x')
+    elif damage == 'grid lengths':
+        s['best_value']['mean'] = s['best_value']['mean'][:-1]
+    elif damage == 'string value':
+        s['final']['best_value_mean'] = 'high'
+    elif damage == 'nan':
+        return json.dumps(doc).replace('"steps":', '"x": NaN, "steps":', 1)
+    return json.dumps(doc)
+
+
+@pytest.mark.parametrize('damage', SUMMARY_DAMAGE)
+def test_a_damaged_summary_is_one_line_from_report(exp_dir, damage):
+    (exp_dir / 'summary.json').write_text(_damaged_summary(exp_dir, damage))
+    line = one_line_error(sapga('experiment', 'report', str(exp_dir)), 'summary.json',
+                          SUMMARY_DAMAGE[damage][1])
+    assert line.startswith('sapga experiment: error:')
+    assert not (exp_dir / 'report.md').exists()
+    assert not (exp_dir.parent / 'outside').exists()
+
+
+@pytest.mark.parametrize('name,text,word', [
+    ('experiment.json', '{"wall_s": "slow"}', 'wall_s'),
+    ('experiment.json', '[1, 2]', 'expected an object'),
+    ('experiment.json', '{"runs_run": NaN}', 'not valid JSON'),
+    ('limits/acrobot.json', '{"problem": "acrobot"}', 'missing field'),
+    ('limits/acrobot.json', '{"problem": "../x", "delta": 0, "step": 0, "width": 1, '
+     '"cells": 1, "steps_simulated": 0, "actions": [], "goal_scale": []}', 'problem'),
+    ('limits/acrobot.json', '{"problem": "acrobot", "delta": "small", "step": 0, '
+     '"width": 1, "cells": 1, "steps_simulated": 0, "actions": [], "goal_scale": []}',
+     'delta'),
+])
+def test_damaged_info_and_limit_files_are_one_line_from_report(exp_dir, name, text, word):
+    (exp_dir / name).write_text(text)
+    one_line_error(sapga('experiment', 'report', str(exp_dir)), name.split('/')[-1], word)
+
+
+def test_a_values_bomb_summary_is_refused_in_bounded_memory(exp_dir):
+    """A summary.json of a million empty lists (under the byte bound) is refused before it
+    is parsed: the report's peak memory stays far below what parsing it would take."""
+    (exp_dir / 'summary.json').write_text('[' + '[],' * 5_000_000 + '[]]')
+    rc, err, peak_mib = sapga_peak_rss(['experiment', 'report', str(exp_dir)])
+    assert rc == 2 and 'JSON values' in err and 'Traceback' not in err
+    assert peak_mib < 400, peak_mib          # parsing it would take about 1 GB
+
+
+def test_report_writes_only_inside_dir_and_never_through_a_link(exp_dir, tmp_path):
+    """Planted links named like the report's figures: each is replaced by the figure, and
+    the files they pointed at keep their content."""
+    victims = {}
+    for name in ('mountain.png', 'figure5_mountain_car.png', 'report.md'):
+        victim = tmp_path / f'victim-{name}'
+        victim.write_text('keep me')
+        (exp_dir / name).unlink(missing_ok=True)
+        (exp_dir / name).symlink_to(victim)
+        victims[name] = victim
+    done = sapga('experiment', 'report', str(exp_dir))
+    assert done.returncode == 0, done.stderr
+    for name, victim in victims.items():
+        assert victim.read_text() == 'keep me'
+        assert not (exp_dir / name).is_symlink() and (exp_dir / name).stat().st_size > 100
+
+
+def test_figure_names_from_data_stay_inside_dir(tmp_path):
+    """A summary (in memory) whose problem is a path cannot name a figure outside DIR."""
+    from sapga_ros.viz.summary_plot import plot_summaries
+    summary = {'problem': '../../escaped', 'grid': [1.0], 'id': 1, 'method': 'sapga',
+               'delta': 0.1, 'best_value': {'mean': [1.0], 'std': [0.0]},
+               'delta_star': {'mean': [1.0], 'std': [0.0]}, 'achieved_fraction': [0.0]}
+    (tmp_path / 'd').mkdir()
+    with pytest.raises(ValueError, match='not a plain file name'):
+        plot_summaries([summary], tmp_path / 'd')
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['d']
+
+
+@pytest.mark.parametrize('args,word', [
+    (['--seeds', '1000000000000'], '--seeds'),
+    (['--seeds', '0'], '--seeds'),
+    (['--scale', '1e300'], '--scale'),
+    (['--scale', 'nan'], '--scale'),
+    (['--scale', '0'], '--scale'),
+    (['--workers', '100000'], '--workers'),
+])
+def test_seeds_scale_and_workers_are_bounded(tmp_path, args, word):
+    done = sapga('experiment', 'table2', '--out', str(tmp_path / 'o'), *args)
+    assert done.returncode == 2 and word in done.stderr and 'Traceback' not in done.stderr
+    assert not (tmp_path / 'o').exists()
+
+
+@pytest.mark.parametrize('address,word', [
+    ('garbage:::', 'expected HOST:PORT'),
+    ('127.0.0.1:99999', 'expected HOST:PORT'),
+    ('127.0.0.1:1', 'no Ray cluster reachable'),
+])
+def test_a_bad_ray_address_is_one_line(tmp_path, address, word):
+    """Malformed, or nothing listening: one line, exit 2, no run trained (the connection
+    attempt is bounded in time: nothing listens on port 1)."""
+    out = tmp_path / 'o'
+    done = sapga('experiment', 'styles', '--out', str(out), '--only', '11', '--seeds', '1',
+                 '--scale', '0.005', '--backend', 'ray', '--address', address)
+    one_line_error(done, word)
+    assert not (out / 'runs').exists() or not any((out / 'runs').iterdir())
+
+
+def _conf_with_set(tmp_path: Path, body: str) -> dict:
+    from sim_nodes.problem import config_dir
+    conf = tmp_path / 'conf'
+    shutil.copytree(config_dir(), conf)
+    (conf / 'experiments' / 'bad.yaml').write_text(
+        'name: bad\nseeds: 1\nexperiments: [{id: 1, problem: mountain_car, delta: 0.0, '
+        'method: sapga, steps: 1000}]\n' + body)
+    return {'SAPGA_CONFIG_DIR': str(conf)}
+
+
+@pytest.mark.parametrize('body,word', [
+    ('limits: 5\n', 'limits: expected a list'),
+    ('limits: [{problem: nope}]\n', 'nope'),
+    ('limits: [{problem: acrobot, alternative_goal: yes please}]\n', 'alternative_goal'),
+    ('limits: [{problem: acrobot, width: 1e99}]\n', 'width'),
+    ('limit: []\n', "unknown key 'limit'"),
+])
+def test_the_whole_set_is_checked_before_any_run(tmp_path, body, word):
+    """A bad limits section is found before a run trains, not after every run."""
+    out = tmp_path / 'o'
+    done = sapga('experiment', 'bad', '--out', str(out), env=_conf_with_set(tmp_path, body))
+    one_line_error(done, 'bad.yaml', word)
+    assert not (out / 'runs').exists() or not any((out / 'runs').iterdir())
+
+
+def test_the_limit_file_is_strict_json_and_reads_back(tmp_path):
+    """The PDIP's goal scale holds nan (the rail has a fixed bound): written as null."""
+    from sapga_ros.analysis.limit_file import read_limit
+    path = tmp_path / 'pdip.json'
+    done = sapga('limit', '--problem', 'pdip', '--width', '200', '--json', '--out', str(path))
+    assert done.returncode == 0, done.stderr
+    doc = strict(path.read_text())
+    assert doc['goal_scale'][0] is None
+    strict(done.stdout)
+    back = read_limit(path)
+    assert back['delta'] == doc['delta'] and len(back['actions']) == back['step']
+
+
+def test_an_address_where_something_else_listens_is_one_line(tmp_path):
+    """A TCP server that is not Ray (it closes at once): refused, never a hang in Ray."""
+    import socket
+    import threading
+    server = socket.create_server(('127.0.0.1', 0))
+    port = server.getsockname()[1]
+
+    def serve():
+        for _ in range(4):
+            conn, _ = server.accept()
+            conn.close()
+    threading.Thread(target=serve, daemon=True).start()
+    try:
+        done = sapga('experiment', 'styles', '--out', str(tmp_path / 'o'), '--only', '11',
+                     '--seeds', '1', '--scale', '0.005', '--backend', 'ray', '--address',
+                     f'127.0.0.1:{port}')
+    finally:
+        server.close()
+    one_line_error(done, 'not a Ray cluster')
+
+
+def test_a_fifo_run_file_or_linked_runs_folder_is_refused_before_any_run(exp_dir, tmp_path):
+    """What a run file cannot replace is refused up front, in one line: a FIFO (reading it
+    would block), and a runs/ folder that is a link out of DIR."""
+    import os
+    path = exp_dir / 'runs' / '11-seed1.json'
+    path.unlink()
+    os.mkfifo(path)
+    done = sapga('experiment', 'styles', '--out', str(exp_dir), '--only', '11', '--seeds',
+                 '2', '--scale', '0.005', '--workers', '1')
+    one_line_error(done, '11-seed1.json', 'not a regular file')
+    path.unlink()
+    elsewhere = tmp_path / 'elsewhere'
+    (exp_dir / 'runs').rename(elsewhere)
+    (exp_dir / 'runs').symlink_to(elsewhere)
+    done = sapga('experiment', 'styles', '--out', str(exp_dir), '--only', '11', '--seeds',
+                 '2', '--scale', '0.005', '--workers', '1')
+    one_line_error(done, 'runs', 'not a directory of this experiment')
+    assert sorted(p.name for p in elsewhere.iterdir()) == ['11-seed0.json']
+
+
+def test_a_folder_or_device_among_the_limits_is_one_line_from_report(exp_dir):
+    (exp_dir / 'limits' / 'acrobot.json').mkdir()
+    one_line_error(sapga('experiment', 'report', str(exp_dir)), 'acrobot.json',
+                   'not a regular file')
