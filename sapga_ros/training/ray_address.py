@@ -40,16 +40,20 @@ def reach(address: str, timeout: float = CONNECT_TIMEOUT_S) -> None:
     if target is None:
         return
     try:
-        with socket.create_connection(target, timeout=timeout) as conn:
-            conn.settimeout(timeout)
-            conn.sendall(_PREFACE)
-            head = b''
-            while len(head) < 9 and (chunk := conn.recv(9 - len(head))):
-                head += chunk
+        conn = socket.create_connection(target, timeout=timeout)
     except OSError as exc:
         reason = 'timed out' if isinstance(exc, TimeoutError) else (exc.strerror or exc)
         raise ConfigError(f'--address {address}: no Ray cluster reachable there '
                           f'({reason}; waited at most {timeout:.0f} s)') from None
+    head = b''
+    with conn:   # something accepted: a reset or silence now means it is not gRPC
+        try:
+            conn.settimeout(timeout)
+            conn.sendall(_PREFACE)
+            while len(head) < 9 and (chunk := conn.recv(9 - len(head))):
+                head += chunk
+        except OSError:
+            pass
     if len(head) < 9 or head[3] != _SETTINGS:
         raise ConfigError(f'--address {address}: something answers there, but not a Ray '
                           'cluster (no gRPC server)')
