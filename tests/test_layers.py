@@ -4,7 +4,7 @@ Ranks, lowest first; a module may import from its own rank or a lower one:
 
 0. ``sim_nodes`` - the environment (problem configs, model kernels, goal); never ``sapga_ros``
 1. ``sapga_ros.errors``, ``sapga_ros.io`` - typed errors, file primitives, checkpoints
-2. ``sapga_ros.exemplars``, ``.evaluation``, ``.optim`` - the method core
+2. ``sapga_ros.exemplars``, ``.evaluation``, ``.optim``, ``.policies`` - the method core
 3. ``sapga_ros.training``, ``.recording``, ``.analysis`` - training runs and experiments;
    recordings; the problems' physical limits
 4. ``sapga_ros.nodes``, ``.launch``, ``sim_nodes.ros`` - ROS shells
@@ -26,6 +26,7 @@ RANKS = {
     'sim_nodes': 0,
     'sapga_ros.errors': 1, 'sapga_ros.io': 1,
     'sapga_ros.exemplars': 2, 'sapga_ros.evaluation': 2, 'sapga_ros.optim': 2,
+    'sapga_ros.policies': 2,
     'sapga_ros.training': 3, 'sapga_ros.recording': 3, 'sapga_ros.analysis': 3,
     'sapga_ros.gym': 3,
     'sapga_ros.nodes': 4, 'sapga_ros.launch': 4,

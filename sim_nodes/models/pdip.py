@@ -30,6 +30,7 @@ from sim_nodes.models import pack_physics
 from sim_nodes.models.common import clip, wrap_angle
 from sim_nodes.models.trig import sin, sincos
 
+END_STOP_PENALTY = 'rail_penalty'  # added on a rail contact (counted as rail_contacts)
 PARAMS = ('m0', 'm1', 'm2', 'l1', 'l2', 'g', 'x_max', 'v_max', 'theta_dot_max', 'rail_penalty')
 DT, SUBSTEPS, M0, M1, M2, L1, L2, G, X_MAX, V_MAX, W_MAX, RAIL = range(12)
 
