@@ -1,0 +1,158 @@
+"""The hold task: problems whose episode runs all n_step steps, its measures (first entry,
+hold fraction, end-stop contacts), the hold bonus, and the classical controller policy."""
+import json
+import math
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from sapga_ros.evaluation.evaluator import Evaluator
+from sapga_ros.exemplars.policy import ExemplarPolicy, load_policy
+from sim_nodes import reference
+from sim_nodes.errors import ConfigError
+from sim_nodes.problem import load_problem, parse_problem
+
+SAPGA = [sys.executable, '-m', 'sapga_ros.cli.main']
+
+
+def sapga(*args):
+    return subprocess.run([*SAPGA, *map(str, args)], capture_output=True, text=True,
+                          env={**os.environ}, timeout=300)
+
+
+def recompute(problem, ep, delta):
+    """The hold measures from the traced states and actions, on the independent reference
+    model: every step replayed from the traced state, contacts from its rail flag."""
+    step = reference.STEPS[problem.model]
+    inside, contacts = [], 0
+    for t in range(ep.steps):
+        s, r = step(ep.states[t], ep.actions[t], problem)
+        gap = np.abs(s - ep.states[t + 1])
+        gap[problem.is_angle] = np.minimum(gap[problem.is_angle],
+                                           2 * np.pi - gap[problem.is_angle])
+        assert gap.max() < 1e-9
+        contacts += r < -50
+        inside.append(reference.goal_delta(problem, ep.states[t + 1]) <= delta)
+    inside = np.array(inside)
+    if not inside.any():
+        return None, 0.0, contacts
+    first = int(np.argmax(inside)) + 1
+    return first, float(inside[first - 1:].mean()), contacts
+
+
+def test_paper_problems_end_in_the_goal_and_hold_problems_do_not():
+    for name in ('acrobot', 'pdip', 'pdip_single'):
+        pr = load_problem(name)
+        assert pr.ends_in_goal and pr.hold_bonus == 0.0 and pr.end_stop == 'stop'
+    acro, pdip = load_problem('acrobot_hold'), load_problem('pdip_hold')
+    assert not acro.ends_in_goal and acro.n_step == 1000 and acro.default_delta == 0.02
+    assert acro.actions == (-2.0, 0.0, 2.0)
+    assert not pdip.ends_in_goal and pdip.n_step == 1000 and pdip.default_delta == 0.05
+    assert pdip.actions == (-40.0, -20.0, -10.0, -5.0, 0.0, 5.0, 10.0, 20.0, 40.0)
+    assert acro.contact_below == -math.inf and pdip.contact_below < -5.0
+
+
+@pytest.mark.parametrize('field, value, words', [
+    ('ends_in_goal', 'no', 'episode.ends_in_goal'),
+    ('hold_bonus', -1, 'episode.hold_bonus'),
+    ('end_stop', 'bounce', 'episode.end_stop'),
+])
+def test_bad_hold_settings_name_the_field(field, value, words):
+    import yaml
+    doc = yaml.safe_load(open(load_problem('pdip_hold').source))
+    doc['episode'][field] = value
+    with pytest.raises(ConfigError, match=words):
+        parse_problem(doc, 'x.yaml')
+
+
+def test_a_bonus_or_fail_needs_a_problem_that_can_use_it():
+    import yaml
+    doc = yaml.safe_load(open(load_problem('acrobot').source))
+    doc['episode']['hold_bonus'] = 1.0
+    with pytest.raises(ConfigError, match='hold_bonus'):
+        parse_problem(doc, 'x.yaml')
+    doc['episode']['hold_bonus'] = 0.0
+    doc['episode']['end_stop'] = 'fail'
+    with pytest.raises(ConfigError, match='end_stop'):
+        parse_problem(doc, 'x.yaml')
+
+
+@pytest.mark.parametrize('name', ['acrobot_hold', 'pdip_hold'])
+def test_batch_and_traced_episode_report_the_independent_hold_measures(name):
+    """Random policies: the batch engine's measures equal the traced episode's, which equal a
+    replay of the traced actions on the reference model (pdip: rail contacts happen)."""
+    pr = load_problem(name)
+    rng = np.random.default_rng(3)
+    policies = [ExemplarPolicy(pr, rng.uniform(pr.low, pr.high, (8, pr.dim)),
+                               rng.integers(0, len(pr.actions), 8)) for _ in range(6)]
+    ev = Evaluator(pr)
+    batch = ev.evaluate(policies)
+    for k, policy in enumerate(policies):
+        ep = ev.episode(policy)
+        assert ep.steps == pr.n_step == batch.steps[k]
+        assert batch.hold(k) == {key: ep.summary()[key] for key in batch.hold(k)}
+        first, fraction, contacts = recompute(pr, ep, ev.delta)
+        hold = ep.summary()
+        assert (hold['first_entry_step'], hold['rail_contacts']) == (first, contacts)
+        assert hold['hold_fraction'] == pytest.approx(fraction, abs=1e-12)
+        inside = sum(reference.goal_delta(pr, s) <= ev.delta for s in ep.states[1:])
+        assert ep.ret == pytest.approx(ep.rewards.sum() + pr.hold_bonus * inside, rel=1e-12)
+    if name == 'pdip_hold':
+        assert batch.contacts.max() > 0
+
+
+@pytest.fixture(scope='module', params=['acrobot_hold', 'pdip_hold'])
+def classical(request, tmp_path_factory):
+    out = tmp_path_factory.mktemp('classical') / f'{request.param}.json'
+    r = sapga('classical', '--problem', request.param, '--out', out)
+    assert r.returncode == 0, r.stderr
+    return request.param, out
+
+
+def test_classical_policy_swings_up_and_holds(classical):
+    """sapga classical writes a kind: classical policy; sapga eval --json prints the hold
+    measures, equal to the replay of its traced episode on the reference model."""
+    name, out = classical
+    doc = json.loads(out.read_text())
+    assert doc['kind'] == 'classical' and doc['problem'] == name
+    r = sapga('eval', out, '--json')
+    assert r.returncode == 0, r.stderr
+    got = json.loads(r.stdout)
+    pr = load_problem(name)
+    ep = Evaluator(pr).episode(load_policy(out))
+    first, fraction, contacts = recompute(pr, ep, pr.default_delta)
+    assert got['first_entry_step'] == first and got['rail_contacts'] == contacts == 0
+    assert got['hold_fraction'] == pytest.approx(fraction, abs=1e-12)
+    assert got['hold_fraction'] >= 0.95        # measured: 1.0 and 0.9965
+
+
+@pytest.mark.parametrize('edit, words', [
+    (lambda d: d['controller'].update(K=[1.0]), 'controller.K'),
+    (lambda d: d['controller']['P'][0].__setitem__(0, 'x'), 'controller.P[0][0]'),
+    (lambda d: d['controller'].update(c=-1), 'controller.c'),
+    (lambda d: d['controller'].pop('swing_up'), 'swing_up'),
+    (lambda d: d['controller']['swing_up'].update(law='magic'), 'swing_up.law'),
+    (lambda d: d['controller']['swing_up']['gains'].update(zz=1), 'swing_up.gains'),
+    (lambda d: d.update(kind='neural'), 'kind'),
+    (lambda d: d.update(controller=[]), 'controller'),
+])
+def test_hostile_classical_files_get_one_line(classical, tmp_path, edit, words):
+    _, out = classical
+    doc = json.loads(out.read_text())
+    edit(doc)
+    bad = tmp_path / 'bad.json'
+    bad.write_text(json.dumps(doc))
+    r = sapga('eval', bad)
+    assert r.returncode == 2 and 'Traceback' not in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and words in r.stderr
+
+
+def test_a_nan_in_a_classical_file_is_refused(classical, tmp_path):
+    _, out = classical
+    bad = tmp_path / 'nan.json'
+    bad.write_text(out.read_text().replace('"c": ', '"c": NaN, "x": ', 1))
+    r = sapga('eval', bad)
+    assert r.returncode == 2 and 'Traceback' not in r.stderr
