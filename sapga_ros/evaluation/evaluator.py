@@ -17,7 +17,7 @@ from sapga_ros.exemplars.distance import normalize_states
 from sapga_ros.exemplars.policy import ExemplarPolicy
 from sapga_ros.exemplars.styles import STYLES
 from sim_nodes.models import model_id
-from sim_nodes.goal import alt_goal_arrays, goal_arrays
+from sim_nodes.goal import alt_goal_arrays, goal_arrays, hold_measures
 from sim_nodes.problem import Problem
 
 
@@ -39,15 +39,6 @@ class BatchResult:
         """Policy k's hold measures (``hold_measures``)."""
         return hold_measures(int(self.first_entry[k]), int(self.held[k]), int(self.steps[k]),
                              int(self.contacts[k]))
-
-
-def hold_measures(first: int, held: int, steps: int, contacts: int) -> dict:
-    """first_entry_step (None: never in S_delta), hold_fraction (steps in S_delta from the
-    first entry to the end / steps from the first entry to the end; 0 if never entered) and
-    rail_contacts (steps that touched the end stop)."""
-    fraction = held / (steps - first + 1) if first > 0 else 0.0
-    return {'first_entry_step': first if first > 0 else None, 'hold_fraction': fraction,
-            'rail_contacts': contacts}
 
 
 @dataclass(frozen=True)
