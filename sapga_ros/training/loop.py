@@ -197,6 +197,7 @@ def _rounds(config: TrainConfig, initial: list[ExemplarPolicy] = (),
     steps_at_start = opt.steps
     alt_star = min([math.inf] + [r['delta_star_alt'] for r in history[-1:]
                                  if r.get('delta_star_alt') is not None])
+    hold: dict = {}
     while not (reasons := opt.stop(config.steps)):
         if should_stop and should_stop():
             reasons = {'should_stop': True}
@@ -209,6 +210,10 @@ def _rounds(config: TrainConfig, initial: list[ExemplarPolicy] = (),
         if on_best and opt.best is not best_before:
             on_best(_best_policy(config, opt, delta, jobs))
         row = opt.counters()
+        if not problem.ends_in_goal:    # the hold task: the best policy's hold measures
+            if opt.best is not best_before or not hold or config.method == 'ql':
+                hold = best_hold(opt.result.policy, delta)
+            row.update(hold)
         if problem.goal_alt_scale is not None and 'delta_star_alt' not in row:
             row['delta_star_alt'] = alt_star   # the alternative goal reading, same runs
         now = time.perf_counter()
@@ -231,6 +236,22 @@ def _rounds(config: TrainConfig, initial: list[ExemplarPolicy] = (),
                        reasons)
 
 
+def hold_of(policy: Any, delta: float) -> dict:
+    """The hold measures of ``policy``'s episode (first_entry_step, hold_fraction,
+    rail_contacts)."""
+    from sapga_ros.evaluation.any_policy import run_policy_episode
+    summary = run_policy_episode(policy, delta).summary()
+    return {k: summary[k] for k in HOLD_KEYS}
+
+
+def best_hold(policy: Any, delta: float) -> dict:
+    """``hold_of`` keyed ``best_<measure>`` (a progress row's columns)."""
+    return {f'best_{k}': v for k, v in hold_of(policy, delta).items()}
+
+
+HOLD_KEYS = ('first_entry_step', 'hold_fraction', 'rail_contacts')
+
+
 def train_sapga(config: TrainConfig, initial: list[ExemplarPolicy] = (),
                 progress: Progress | None = None,
                 on_best: Callable[[ExemplarPolicy], None] | None = None,
@@ -248,6 +269,8 @@ def _best_policy(config: TrainConfig, opt: Optimizer, delta: float, jobs: int) -
     policy.meta = {**result.meta, 'delta': delta, 'seed': config.seed, 'jobs': jobs,
                    'software': f'sapga_ros {__version__}',
                    'time': time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime())}
+    if not policy.problem.ends_in_goal:
+        policy.meta.update(hold_of(policy, delta))
     return policy
 
 
