@@ -93,6 +93,7 @@ class Evaluator:
         self.radius2 = problem.via_point_radius ** 2
         self.goal_u = normalize_states(problem.best_state[None, :], self.ranges,
                                        self.is_angle)[:, 0].copy()
+        self.catch: np.ndarray | None = None   # controller row of policies without one
         self.hold = (problem.ends_in_goal, problem.hold_bonus, problem.contact_below,
                      problem.end_stop == 'fail')
 
@@ -101,10 +102,10 @@ class Evaluator:
                 self.n_step, self.actions, self.radius2, self.goal_u, *self.alt_goal,
                 *self.hold)
 
-    @staticmethod
-    def controls(policies) -> np.ndarray:
-        """(P, C) controller rows (``sapga_ros.policies.control``), zero-padded."""
-        rows = [getattr(p, 'control', None) for p in policies]
+    def controls(self, policies) -> np.ndarray:
+        """(P, C) controller rows (``sapga_ros.policies.control``), zero-padded: a policy's
+        own, else the evaluator's ``catch`` (None: no controller)."""
+        rows = [getattr(p, 'control', self.catch) for p in policies]
         width = max([1] + [len(r) for r in rows if r is not None])
         ctl = np.zeros((len(policies), width))
         for k, r in enumerate(rows):
