@@ -51,6 +51,7 @@ def test_paper_problems_end_in_the_goal_and_hold_problems_do_not():
     assert not acro.ends_in_goal and acro.n_step == 1000 and acro.default_delta == 0.02
     assert acro.actions == (-2.0, 0.0, 2.0)
     assert not pdip.ends_in_goal and pdip.n_step == 1000 and pdip.default_delta == 0.05
+    assert pdip.end_stop == 'fail'
     assert pdip.actions == (-40.0, -20.0, -10.0, -5.0, 0.0, 5.0, 10.0, 20.0, 40.0)
     assert acro.contact_below == -math.inf and pdip.contact_below < -5.0
 
@@ -92,7 +93,9 @@ def test_batch_and_traced_episode_report_the_independent_hold_measures(name):
     batch = ev.evaluate(policies)
     for k, policy in enumerate(policies):
         ep = ev.episode(policy)
-        assert ep.steps == pr.n_step == batch.steps[k]
+        assert ep.steps == batch.steps[k]
+        # all n_step steps run, but for a rail contact under end_stop: fail
+        assert ep.steps == pr.n_step or (pr.end_stop == 'fail' and ep.contacts == 1)
         assert batch.hold(k) == {key: ep.summary()[key] for key in batch.hold(k)}
         first, fraction, contacts = recompute(pr, ep, ev.delta)
         hold = ep.summary()
@@ -101,7 +104,7 @@ def test_batch_and_traced_episode_report_the_independent_hold_measures(name):
         inside = sum(reference.goal_delta(pr, s) <= ev.delta for s in ep.states[1:])
         assert ep.ret == pytest.approx(ep.rewards.sum() + pr.hold_bonus * inside, rel=1e-12)
     if name == 'pdip_hold':
-        assert batch.contacts.max() > 0
+        assert batch.contacts.max() > 0 and min(batch.steps) < pr.n_step
 
 
 @pytest.fixture(scope='module', params=['acrobot_hold', 'pdip_hold'])
@@ -156,3 +159,33 @@ def test_a_nan_in_a_classical_file_is_refused(classical, tmp_path):
     bad.write_text(out.read_text().replace('"c": ', '"c": NaN, "x": ', 1))
     r = sapga('eval', bad)
     assert r.returncode == 2 and 'Traceback' not in r.stderr
+
+
+def test_catch_lqr_trains_a_hybrid_whose_file_runs_like_its_run(tmp_path):
+    """sapga train --catch lqr writes an exemplar policy with a catch; sapga eval of the file
+    reproduces the run's value and hold measures; a hostile catch gets one line."""
+    out = tmp_path / 'hybrid.json'
+    r = sapga('train', '--problem', 'acrobot_hold', '--steps', '300000', '--seed', '1',
+              '--catch', 'lqr', '--quiet', '--out', out)
+    assert r.returncode == 0, r.stderr
+    doc = json.loads(out.read_text())
+    assert doc['exemplars'] and set(doc['catch']) == {'K', 'P', 'c'}
+    got = json.loads(sapga('eval', out, '--json').stdout)
+    meta = doc['meta']
+    assert got['return'] == meta['value']
+    assert [got[k] for k in ('first_entry_step', 'hold_fraction', 'rail_contacts')] == \
+        [meta[k] for k in ('first_entry_step', 'hold_fraction', 'rail_contacts')]
+    log = out.with_suffix('.log.csv').read_text().splitlines()
+    assert 'best_hold_fraction' in log[0]
+    doc['catch']['c'] = 'wide'
+    bad = tmp_path / 'bad.json'
+    bad.write_text(json.dumps(doc))
+    r = sapga('eval', bad)
+    assert r.returncode == 2 and 'catch.c' in r.stderr and 'Traceback' not in r.stderr
+
+
+def test_catch_lqr_refuses_q_learning(tmp_path):
+    r = sapga('train', '--problem', 'acrobot_hold', '--method', 'ql', '--catch', 'lqr',
+              '--steps', '1000', '--quiet', '--out', tmp_path / 'x.json')
+    assert r.returncode == 2 and 'Traceback' not in r.stderr and '--catch' in r.stderr
+    assert not (tmp_path / 'x.json').exists()
