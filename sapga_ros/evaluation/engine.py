@@ -124,11 +124,11 @@ def run_share(model, style, ex, ex2, act, val, lengths, first, stop, s0, p, inv_
             if hit:
                 contacts[k] += 1
             if d <= delta:  # goal test after the step's reward is counted
+                held[k] += 1
                 if ends_in_goal:
                     reached[k] = True
                 else:
                     returns[k] += hold_bonus
-                    held[k] += 1
                 if first_entry[k] == 0:
                     first_entry[k] = steps[k]
                     if not ends_in_goal:

@@ -211,10 +211,10 @@ def greedy_episode(model, q, s0, p, actions, idx, low, width, tiles, best, inv_s
             reached = True
             if hold[0] == 0:
                 hold[0] = t
+            hold[1] += 1
             if ends_in_goal:
                 break
             total += hold_bonus
-            hold[1] += 1
         if hit and fail_on_contact:
             break
     return total, t, dstar, reached

@@ -233,9 +233,9 @@ class SimNode(Node):
         inside = d <= self.settings.delta
         if inside:
             self._hold[0] = self._hold[0] or self._step
+            self._hold[1] += 1
             if not self.problem.ends_in_goal:       # the hold task: bonus, no end
                 self._return += self.problem.hold_bonus
-                self._hold[1] += 1
         self._effort = action
         self._tick += 1
         self._reward_msg.data = reward
