@@ -189,3 +189,22 @@ def test_catch_lqr_refuses_q_learning(tmp_path):
               '--steps', '1000', '--quiet', '--out', tmp_path / 'x.json')
     assert r.returncode == 2 and 'Traceback' not in r.stderr and '--catch' in r.stderr
     assert not (tmp_path / 'x.json').exists()
+
+
+def test_the_hold_experiment_set_parses_and_its_classical_rows_run(tmp_path):
+    """msg_configs/experiments/hold.yaml: every row parses (a catch on a CMA-ES row is
+    refused); its classical rows run and their summary carries the hold measures."""
+    from sapga_ros.training.experiment_set import _experiment, load_experiments
+    exps, seeds = load_experiments('hold')
+    assert seeds == 20 and {e.problem for e in exps} == {'acrobot_hold', 'pdip_hold'}
+    assert {(e.method, e.catch) for e in exps} >= {('sapga', 'lqr'), ('classical', 'none')}
+    with pytest.raises(ConfigError, match='catch'):
+        _experiment({'id': 1, 'problem': 'acrobot_hold', 'delta': 0.02, 'method': 'cmaes',
+                     'steps': 10, 'catch': 'lqr'}, 'x')
+    r = sapga('experiment', 'hold', '--out', tmp_path / 'x', '--only', '5,10', '--seeds', '1',
+              '--workers', '1')
+    assert r.returncode == 0, r.stderr
+    summaries = json.loads((tmp_path / 'x' / 'summary.json').read_text())
+    summary = {s['id']: s['final'] for s in summaries}
+    assert summary[5]['holding'] == 1 and summary[10]['holding_clean'] == 1
+    assert 'hold fraction' in (tmp_path / 'x' / 'summary.md').read_text()
