@@ -65,3 +65,24 @@ def delta_of(problem, s) -> float:
     """delta(s) of one state (a convenience around ``goal_delta``)."""
     return float(goal_delta(np.asarray(s, dtype=np.float64), *goal_arrays(problem),
                             problem.is_angle))
+
+
+def hold_measures(first: int, held: int, steps: int, contacts: int) -> dict:
+    """The hold task's measures of an episode of ``steps`` steps whose first step in S_delta
+    was ``first`` (0: never) with ``held`` steps in S_delta from it on and ``contacts``
+    end-stop contacts: first_entry_step (None: never), hold_fraction (steps in S_delta from
+    the first entry to the end / steps from the first entry to the end; 0 if never entered)
+    and rail_contacts."""
+    fraction = held / (steps - first + 1) if first > 0 else 0.0
+    return {'first_entry_step': first if first > 0 else None, 'hold_fraction': fraction,
+            'rail_contacts': contacts}
+
+
+def trace_hold(problem, states, rewards, delta: float) -> dict:
+    """``hold_measures`` of a recorded episode: ``states`` from the initial one on, one
+    reward per step (a contact is a reward below ``problem.contact_below``)."""
+    inside = [delta_of(problem, s) <= delta for s in states[1:]]
+    first = inside.index(True) + 1 if True in inside else 0
+    held = sum(inside[first - 1:]) if first else 0
+    contacts = sum(1 for r in rewards if r < problem.contact_below)
+    return hold_measures(first, held, len(inside), contacts)

@@ -117,6 +117,9 @@ class Problem:
     reward_range: tuple[float, float] | None = None  # one MDP step's reward [low, high]
     via_point_radius: float = 0.3               # normalised distance reaching a via-point
     goal_alt_scale: tuple[float, ...] | None = None  # another reading of goal.scale, measured
+    ends_in_goal: bool = True                   # False: the hold task, all n_step steps run
+    hold_bonus: float = 0.0                     # added to a step's reward when it ends in S_delta
+    end_stop: str = 'stop'                      # 'fail': an end-stop contact ends the episode
     ros: dict[str, Any] = field(default_factory=dict, compare=False)
     source: str = ''
 
@@ -175,6 +178,21 @@ class Problem:
     @property
     def joints(self) -> tuple[str, ...]:
         return tuple(self.ros.get('joints', ()))
+
+    @property
+    def contact_below(self) -> float:
+        """A step whose reward is below this touched the end stop (-inf: no end stop).
+
+        A model with an end stop names its penalty parameter (``END_STOP_PENALTY``); the
+        penalty is added to a step's reward on a contact, so a contact step's reward lies
+        ``|penalty|`` below the lowest contact-free reward (``reward_range`` low minus the
+        penalty); the threshold is halfway."""
+        from sim_nodes.models import model_module
+        name = getattr(model_module(self.model), 'END_STOP_PENALTY', None)
+        penalty = self.physics.get(name, 0.0) if name else 0.0
+        if not penalty < 0.0 or self.reward_range is None:
+            return -math.inf
+        return self.reward_range[0] - penalty + penalty / 2.0
 
     def params(self) -> np.ndarray:
         """The model kernel's parameter vector (sim_nodes.models.<model>.pack_params)."""
@@ -318,7 +336,8 @@ def parse_problem(doc: Any, source: str) -> Problem:
         reward_range=reward_range, goal_alt_scale=alt_scale,
         via_point_radius=parse_number(styles.get('via_point_radius', 0.3),
                                       f'{source}: exemplars.via_point_radius'),
-        ros=ros, source=source)
+        ros=ros, source=source, **_hold_settings(episode, f'{source}: episode'))
+    _check_hold(problem)
     if problem.dt <= 0 or problem.default_delta < 0:
         raise ConfigError(f'{source}: episode: needs dt > 0 and delta >= 0')
     if not problem.via_point_radius > 0:
@@ -326,6 +345,33 @@ def parse_problem(doc: Any, source: str) -> Problem:
     problem.params()  # the model checks its own physics parameters
     check_physics(problem)
     return problem
+
+
+END_STOPS = ('stop', 'fail')
+
+
+def _hold_settings(episode: dict, where: str) -> dict:
+    """episode.ends_in_goal, episode.hold_bonus and episode.end_stop, checked."""
+    ends = episode.get('ends_in_goal', True)
+    if not isinstance(ends, bool):
+        raise ConfigError(f'{where}.ends_in_goal: expected true or false, got {ends!r}')
+    bonus = parse_number(episode.get('hold_bonus', 0.0), f'{where}.hold_bonus')
+    if bonus < 0:
+        raise ConfigError(f'{where}.hold_bonus: needs a number >= 0, got {bonus!r}')
+    stop = episode.get('end_stop', 'stop')
+    if stop not in END_STOPS:
+        raise ConfigError(f'{where}.end_stop: expected one of {", ".join(END_STOPS)}, '
+                          f'got {str(stop)[:40]!r}')
+    return {'ends_in_goal': ends, 'hold_bonus': bonus, 'end_stop': stop}
+
+
+def _check_hold(problem: Problem) -> None:
+    if problem.hold_bonus and problem.ends_in_goal:
+        raise ConfigError(f'{problem.source}: episode.hold_bonus: only for ends_in_goal: false '
+                          '(an episode that ends in S_delta holds nothing)')
+    if problem.end_stop == 'fail' and problem.contact_below == -math.inf:
+        raise ConfigError(f'{problem.source}: episode.end_stop: fail needs a model with an end '
+                          f'stop and its penalty (model {problem.model} has none)')
 
 
 def load_problem_file(path: str | os.PathLike) -> Problem:

@@ -210,3 +210,22 @@ def test_train_deploy_serves_records_and_equals_the_offline_evaluation(tmp_path,
     expected = sapga_eval_json(tmp_path / 'td' / 'policy.json', capsys)
     assert (end['return'], end['step']) == (expected['return'], expected['steps'])
     assert (tmp_path / 'td' / 'checkpoint').is_dir()
+
+
+def test_swingup_runs_the_classical_controller_on_the_hold_task(tmp_path, capsys):
+    """The classical policy file of acrobot_hold deployed by the swingup launch: the lockstep
+    episode runs all 1000 steps (no goal end), holds, and equals sapga eval, hold measures
+    included."""
+    assert cli.main(['classical', '--problem', 'acrobot_hold', '--out',
+                     str(tmp_path / 'c.json')]) == 0
+    capsys.readouterr()
+    done = launch(['swingup', '--policy', 'c.json', '--mode', 'lockstep', '--episodes', '1',
+                   '--out', 'rec'], tmp_path)
+    assert 'every lockstep episode is equal' in done.stdout
+    (end,), rewards = recorded_episodes(the_bag(tmp_path / 'rec'))
+    expected = sapga_eval_json(tmp_path / 'c.json', capsys)
+    assert end['event'] == 'step_limit' and end['step'] == expected['steps'] == 1000
+    assert len(rewards) == 1000
+    for key in ('return', 'first_entry_step', 'hold_fraction', 'rail_contacts'):
+        assert end[key] == expected[key], key
+    assert end['hold_fraction'] >= 0.95

@@ -11,6 +11,7 @@
     sapga experiment NAME --out DIR [--only 2,4] [--seeds N] [--scale F] [--workers W]
                      [--backend local|ray] [--address ADDR]
     sapga experiment report DIR
+    sapga classical --problem P --out FILE.json [--gain NAME=V ...] [--c C]
     sapga limit --problem P [--alternative-goal] [--width W] [--json] [--out FILE]
     sapga launch NAME ... [--namespace NS] [--remap FROM:=TO ...] [--ros-args ...]
     sapga --version
@@ -29,6 +30,7 @@ import sys
 from pathlib import Path
 
 from sapga_ros.cli.args import add_param, check_output_file, episode_steps
+from sapga_ros.cli.classical import add_classical_arguments, cmd_classical
 from sapga_ros.cli.experiment import (add_experiment_arguments, add_limit_arguments,
                                       cmd_experiment, cmd_limit)
 from sapga_ros.cli.recordings import (add_bag_arguments, add_inspect_arguments, cmd_bag,
@@ -88,6 +90,10 @@ def build_parser() -> argparse.ArgumentParser:
     add_limit_arguments(sub.add_parser(
         'limit', help='the smallest delta any action sequence reaches (open-loop search)'))
 
+    add_classical_arguments(sub.add_parser(
+        'classical', help='write the classical controller (LQR behind an energy swing-up) '
+        'as a policy file'))
+
     # `sapga launch ...` goes to the launch itself (main); listed here for `sapga --help`
     sub.add_parser('launch', help='start a group of nodes (swingup, train_deploy; sapga '
                    'launch --help)', add_help=False)
@@ -106,6 +112,10 @@ def cmd_eval(args) -> int:
         reached = 'reached' if ep.reached else 'did not reach'
         print(f'{policy.problem.name}: return {ep.ret:.6f}, delta* {ep.delta_star:.6f}, '
               f'steps {ep.steps}, {reached} S_delta (delta {delta})')
+        if not policy.problem.ends_in_goal or ep.contacts:
+            hold = ep.summary()
+            print(f'  first entry step {hold["first_entry_step"]}, hold fraction '
+                  f'{hold["hold_fraction"]:.4f}, rail contacts {hold["rail_contacts"]}')
     return 0
 
 
@@ -205,7 +215,7 @@ def cmd_launch(argv: list[str]) -> int:
 
 COMMANDS = {'train': cmd_train, 'eval': cmd_eval, 'exemplars': cmd_exemplars,
             'bench': cmd_bench, 'inspect': cmd_inspect, 'bag': cmd_bag,
-            'experiment': cmd_experiment, 'limit': cmd_limit}
+            'experiment': cmd_experiment, 'limit': cmd_limit, 'classical': cmd_classical}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -69,6 +69,9 @@ class _Progress:
     def __call__(self, row: dict) -> None:
         text = (f"best {row['best_value']:.2f}  delta* {row['delta_star']:.4f}  "
                 f"{row['steps_per_s'] / 1e6:.2f} M steps/s")
+        if 'best_hold_fraction' in row:       # the hold task
+            text += (f"  hold {row['best_hold_fraction']:.3f} from step "
+                     f"{row['best_first_entry_step']}, rail {row['best_rail_contacts']}")
         if self.bar is not None:
             self.bar.update(min(row['steps'], self.total) - self.bar.n)
             self.bar.set_postfix_str(text)
@@ -124,5 +127,8 @@ def cmd_train(args: argparse.Namespace) -> int:
           f"{meta['delta_star']:.4f}, run delta* {meta['run_delta_star']:.4f} "
           f"({'achieved' if meta['run_delta_star'] <= meta['delta'] else 'not achieved'} "
           f"delta {meta['delta']}), {meta['steps']:,d} steps")
+    if not problem.ends_in_goal:
+        print(f"hold: first entry step {meta['first_entry_step']}, hold fraction "
+              f"{meta['hold_fraction']:.4f}, rail contacts {meta['rail_contacts']}")
     print(f'policy: {run.out}\nlog: {run.log}\ncheckpoint: {run.checkpoint}')
     return 128 + received[0] if received else 0

@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 from numba import prange
 
-from sapga_ros.exemplars.selectors import select
+from sapga_ros.policies.control import choose
 from sim_nodes.goal import goal_delta
 from sim_nodes.jit import kernel
 from sim_nodes.models.dispatch import step_lanes
@@ -35,9 +35,18 @@ BLOCKS_PER_THREAD = 4  # shares of a batch per thread, for load balance
 @kernel
 def run_share(model, style, ex, ex2, act, val, lengths, first, stop, s0, p, inv_range,
               is_angle, best, inv_scale, fixed, delta, n_step, actions, radius2, goal_u,
-              alt_inv_scale, alt_fixed, returns, steps, dstar, dstar_alt, reached, used,
+              alt_inv_scale, alt_fixed, ends_in_goal, hold_bonus, contact_below, fail_on_contact,
+              ctl, returns, steps, dstar, dstar_alt, reached, used, first_entry, held, contacts,
               tr_state, tr_idx, tr_act, tr_reward):
     """Evaluate policies first..stop-1 on LANES lanes.
+
+    The hold task: with ``ends_in_goal`` false an episode runs all n_step steps;
+    ``hold_bonus`` is added to the return for every step that ends in S_delta;
+    ``first_entry`` is the first such step (0: none), ``held`` their count from it on
+    (``held / (steps - first_entry + 1)`` is the hold fraction).  A step whose reward is
+    below ``contact_below`` touched the end stop (``contacts``); ``fail_on_contact`` ends
+    the episode there.  ``ctl[k]`` is policy k's controller
+    (``sapga_ros.policies.control``; one 0 column: none).
 
     ``dstar_alt`` is delta* under an alternative reading of the goal box (alt_inv_scale,
     alt_fixed; measured only, never ending an episode); empty alt arrays: not measured.
@@ -55,6 +64,7 @@ def run_share(model, style, ex, ex2, act, val, lengths, first, stop, s0, p, inv_
     w_state = np.empty((dim, 1))
     w_act = np.zeros(1)
     w_rew = np.zeros(1)
+    x = np.empty(dim)
     pol = np.full(LANES, -1)                  # policy on each lane; -1: idle
     progress = np.zeros(LANES, dtype=np.int64)  # the selector's per-episode state
     trace = tr_state.shape[0] > n_step
@@ -74,6 +84,9 @@ def run_share(model, style, ex, ex2, act, val, lengths, first, stop, s0, p, inv_
                 if alt:
                     dstar_alt[nxt] = goal_delta(s0, best, alt_inv_scale, alt_fixed, is_angle)
                 reached[nxt] = False
+                first_entry[nxt] = 0
+                held[nxt] = 0
+                contacts[nxt] = 0
                 if trace and nxt == 0:
                     tr_state[0, :] = s0
                 nxt += 1
@@ -83,10 +96,10 @@ def run_share(model, style, ex, ex2, act, val, lengths, first, stop, s0, p, inv_
         for lane in range(LANES):
             k = pol[lane]
             if k >= 0:
-                j, a[lane], progress[lane] = select(
+                j, a[lane], progress[lane] = choose(
                     style, model, S[:, lane], ex[k], ex2[k], act[k], val[k], lengths[k],
                     actions, p, inv_range, is_angle, radius2, goal_u, progress[lane], used[k],
-                    u, acc, w_state, w_act, w_rew)
+                    u, acc, w_state, w_act, w_rew, ctl[k], best, x)
                 if trace and k == 0:
                     tr_idx[steps[k]] = j
                     tr_act[steps[k]] = a[lane]
@@ -107,9 +120,20 @@ def run_share(model, style, ex, ex2, act, val, lengths, first, stop, s0, p, inv_
             if trace and k == 0:
                 tr_state[steps[k], :] = S[:, lane]
                 tr_reward[steps[k] - 1] = r[lane]
+            hit = r[lane] < contact_below
+            if hit:
+                contacts[k] += 1
             if d <= delta:  # goal test after the step's reward is counted
-                reached[k] = True
-            if reached[k] or steps[k] >= n_step:
+                held[k] += 1
+                if ends_in_goal:
+                    reached[k] = True
+                else:
+                    returns[k] += hold_bonus
+                if first_entry[k] == 0:
+                    first_entry[k] = steps[k]
+                    if not ends_in_goal:
+                        reached[k] = True
+            if (reached[k] and ends_in_goal) or steps[k] >= n_step or (hit and fail_on_contact):
                 S[:, lane] = s0
                 a[lane] = 0.0
                 pol[lane] = -1
@@ -119,8 +143,9 @@ def run_share(model, style, ex, ex2, act, val, lengths, first, stop, s0, p, inv_
 @kernel(parallel=True)
 def evaluate_batch(model, style, ex, ex2, act, val, lengths, s0, p, inv_range, is_angle,
                    best, inv_scale, fixed, delta, n_step, actions, radius2, goal_u,
-                   alt_inv_scale, alt_fixed, shares, returns, steps, dstar, dstar_alt,
-                   reached, used):
+                   alt_inv_scale, alt_fixed, ends_in_goal, hold_bonus, contact_below,
+                   fail_on_contact, ctl, shares, returns, steps, dstar, dstar_alt, reached, used,
+                   first_entry, held, contacts):
     """Evaluate policies ex[k, :, :lengths[k]] in ``shares`` parallel shares (untraced)."""
     count = ex.shape[0]
     no_state = np.zeros((1, s0.shape[0]))
@@ -131,5 +156,6 @@ def evaluate_batch(model, style, ex, ex2, act, val, lengths, s0, p, inv_range, i
         stop = (b + 1) * count // shares
         run_share(model, style, ex, ex2, act, val, lengths, first, stop, s0, p, inv_range,
                   is_angle, best, inv_scale, fixed, delta, n_step, actions, radius2, goal_u,
-                  alt_inv_scale, alt_fixed, returns, steps, dstar, dstar_alt, reached, used,
-                  no_state, no_idx, no_val, no_val)
+                  alt_inv_scale, alt_fixed, ends_in_goal, hold_bonus, contact_below,
+                  fail_on_contact, ctl, returns, steps, dstar, dstar_alt, reached, used,
+                  first_entry, held, contacts, no_state, no_idx, no_val, no_val)

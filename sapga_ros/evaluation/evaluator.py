@@ -17,7 +17,7 @@ from sapga_ros.exemplars.distance import normalize_states
 from sapga_ros.exemplars.policy import ExemplarPolicy
 from sapga_ros.exemplars.styles import STYLES
 from sim_nodes.models import model_id
-from sim_nodes.goal import alt_goal_arrays, goal_arrays
+from sim_nodes.goal import alt_goal_arrays, goal_arrays, hold_measures
 from sim_nodes.problem import Problem
 
 
@@ -31,6 +31,14 @@ class BatchResult:
     reached: np.ndarray     # ended in S_delta
     used: list              # per policy: bool (L,), exemplars referred to
     delta_star_alt: np.ndarray | None = None  # delta* under the alternative goal reading
+    first_entry: np.ndarray | None = None   # first step in S_delta, 0: never
+    held: np.ndarray | None = None          # steps in S_delta from the first entry on
+    contacts: np.ndarray | None = None      # steps that touched the end stop
+
+    def hold(self, k: int) -> dict:
+        """Policy k's hold measures (``hold_measures``)."""
+        return hold_measures(int(self.first_entry[k]), int(self.held[k]), int(self.steps[k]),
+                             int(self.contacts[k]))
 
 
 @dataclass(frozen=True)
@@ -46,10 +54,14 @@ class Episode:
     delta_star: float
     reached: bool
     used: np.ndarray | None = None  # (L,) exemplars referred to (exemplar policies)
+    first_entry: int = 0            # first step in S_delta, 0: never
+    held: int = 0                   # steps in S_delta from the first entry on
+    contacts: int = 0               # steps that touched the end stop
 
     def summary(self) -> dict:
         return {'return': self.ret, 'delta_star': self.delta_star, 'steps': self.steps,
-                'reached': self.reached}
+                'reached': self.reached,
+                **hold_measures(self.first_entry, self.held, self.steps, self.contacts)}
 
 
 def set_jobs(jobs: int | None) -> int:
@@ -81,10 +93,25 @@ class Evaluator:
         self.radius2 = problem.via_point_radius ** 2
         self.goal_u = normalize_states(problem.best_state[None, :], self.ranges,
                                        self.is_angle)[:, 0].copy()
+        self.catch: np.ndarray | None = None   # controller row of policies without one
+        self.hold = (problem.ends_in_goal, problem.hold_bonus, problem.contact_below,
+                     problem.end_stop == 'fail')
 
     def _consts(self):
         return (self.s0, self.params, self.inv_range, self.is_angle, *self.goal, self.delta,
-                self.n_step, self.actions, self.radius2, self.goal_u, *self.alt_goal)
+                self.n_step, self.actions, self.radius2, self.goal_u, *self.alt_goal,
+                *self.hold)
+
+    def controls(self, policies) -> np.ndarray:
+        """(P, C) controller rows (``sapga_ros.policies.control``), zero-padded: a policy's
+        own, else the evaluator's ``catch`` (None: no controller)."""
+        rows = [getattr(p, 'control', self.catch) for p in policies]
+        width = max([1] + [len(r) for r in rows if r is not None])
+        ctl = np.zeros((len(policies), width))
+        for k, r in enumerate(rows):
+            if r is not None:
+                ctl[k, :len(r)] = r
+        return ctl
 
     def pack(self, policies: list[ExemplarPolicy]):
         """(style number, ex, ex2, act, val, lengths): padded (P, D, Lmax) normalised
@@ -121,13 +148,15 @@ class Evaluator:
         dstar_alt = np.full(count, np.nan)
         reached = np.zeros(count, dtype=np.bool_)
         used = np.zeros(act.shape, dtype=np.bool_)
+        first, held, contacts = (np.zeros(count, dtype=np.int64) for _ in range(3))
         if count:
             shares = max(1, min(count, numba.get_num_threads() * BLOCKS_PER_THREAD))
             evaluate_batch(self.model, style, ex, ex2, act, val, lengths, *self._consts(),
-                           shares, returns, steps, dstar, dstar_alt, reached, used)
+                           self.controls(policies), shares, returns, steps, dstar, dstar_alt,
+                           reached, used, first, held, contacts)
         return BatchResult(returns, steps, dstar, reached,
                            [used[k, :n].copy() for k, n in enumerate(lengths)],
-                           dstar_alt if len(self.alt_goal[0]) else None)
+                           dstar_alt if len(self.alt_goal[0]) else None, first, held, contacts)
 
     def episode(self, policy: ExemplarPolicy) -> Episode:
         """Run ``policy`` once from the initial state and record the trajectory."""
@@ -136,14 +165,16 @@ class Evaluator:
         steps = np.zeros(1, dtype=np.int64)
         reached = np.zeros(1, dtype=np.bool_)
         used = np.zeros(act.shape, dtype=np.bool_)
+        first, held, contacts = (np.zeros(1, dtype=np.int64) for _ in range(3))
         tr_state = np.zeros((self.n_step + 1, self.problem.dim))
         tr_idx = np.zeros(self.n_step, dtype=np.int64)
         tr_act = np.zeros(self.n_step)
         tr_reward = np.zeros(self.n_step)
         run_share(self.model, style, ex, ex2, act, val, lengths, 0, 1, *self._consts(),
-                  returns, steps, dstar, dstar_alt, reached, used, tr_state, tr_idx, tr_act,
-                  tr_reward)
+                  self.controls([policy]), returns, steps, dstar, dstar_alt, reached, used,
+                  first, held, contacts, tr_state, tr_idx, tr_act, tr_reward)
         n = int(steps[0])
         return Episode(tr_state[:n + 1].copy(), tr_act[:n].copy(), tr_idx[:n].copy(),
                        tr_reward[:n].copy(), float(returns[0]), n, float(dstar[0]),
-                       bool(reached[0]), used[0, :len(policy)].copy())
+                       bool(reached[0]), used[0, :len(policy)].copy(), int(first[0]),
+                       int(held[0]), int(contacts[0]))

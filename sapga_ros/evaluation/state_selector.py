@@ -1,9 +1,9 @@
 """One policy answering one state at a time: the ROS policy node and the policy maps.
 
 ``StateSelector`` packs a policy exactly as ``Evaluator`` packs a batch and calls the same
-compiled ``select``, so each action equals the one the offline episode takes.  Only the
-via-point style carries state from one step to the next (the via-points passed so far);
-``reset()`` starts a new episode.
+compiled ``choose`` (the selector behind the policy's controller, if any), so each action
+equals the one the offline episode takes.  Only the via-point style carries state from one
+step to the next (the via-points passed so far); ``reset()`` starts a new episode.
 """
 from __future__ import annotations
 
@@ -11,7 +11,8 @@ import numpy as np
 
 from sapga_ros.evaluation.evaluator import Evaluator
 from sapga_ros.exemplars.policy import ExemplarPolicy
-from sapga_ros.exemplars.selectors import scratch, select
+from sapga_ros.exemplars.selectors import scratch
+from sapga_ros.policies.control import choose
 from sapga_ros.exemplars.styles import STYLES
 
 
@@ -26,7 +27,8 @@ class StateSelector:
         self._args = (number, ev.model)
         self._policy_args = (ex[0], ex2[0], act[0], val[0], int(lengths[0]), ev.actions,
                              ev.params, ev.inv_range, ev.is_angle, ev.radius2, ev.goal_u)
-        self._scratch = scratch(policy.problem.dim, len(policy))
+        self._scratch = (*scratch(policy.problem.dim, len(policy)), ev.controls([policy])[0],
+                         policy.problem.best_state, np.empty(policy.problem.dim))
         self.used = np.zeros(len(policy), dtype=np.bool_)   # referred to since creation
         self.progress = 0                                   # via-points passed
 
@@ -45,6 +47,6 @@ class StateSelector:
     def select(self, state: np.ndarray) -> tuple[int, float]:
         """(exemplar index reported, -1 for none; action value) for a raw state."""
         s = np.ascontiguousarray(state, dtype=np.float64)
-        j, action, self.progress = select(*self._args, s, *self._policy_args, self.progress,
+        j, action, self.progress = choose(*self._args, s, *self._policy_args, self.progress,
                                           self.used, *self._scratch)
         return int(j), float(action)

@@ -215,6 +215,12 @@ def policy_from_document(doc: Any, problem: str | Problem | None = None,
     """Validate a parsed policy document; ``problem`` (if given) must match its problem."""
     if not isinstance(doc, dict):
         raise PolicyFileError(f'{source}: expected a JSON object at the top level')
+    if 'kind' in doc:             # a controller, not exemplars (sapga_ros.policies)
+        if doc['kind'] != 'classical':
+            raise PolicyFileError(f'{source}: kind: {excerpt(doc["kind"])} is not supported '
+                                  '(supported: classical)')
+        from sapga_ros.policies.classical import classical_from_document
+        return classical_from_document(doc, problem, source)
     for key in ('format', 'problem', 'style', 'state_names', 'actions', 'exemplars'):
         if key not in doc:
             raise PolicyFileError(f'{source}: missing field {key!r}')
@@ -277,8 +283,12 @@ def policy_from_document(doc: Any, problem: str | Problem | None = None,
     if not isinstance(meta, dict):
         raise PolicyFileError(f'{source}: meta: expected an object')
     _check_finite_tree(meta, f'{source}: meta')
-    return ExemplarPolicy(prob, states, acts, meta=meta, style=spec.name, values=vals,
-                          states2=states2 if spec.uses('state2') else None)
+    policy = ExemplarPolicy(prob, states, acts, meta=meta, style=spec.name, values=vals,
+                            states2=states2 if spec.uses('state2') else None)
+    if 'catch' in doc:            # the hybrid: the LQR catches inside x'Px <= c
+        from sapga_ros.policies.classical import attach_catch
+        return attach_catch(policy, doc['catch'], source)
+    return policy
 
 
 def _read_state(st: Any, where: str, prob: Problem, out: np.ndarray) -> None:

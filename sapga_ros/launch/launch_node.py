@@ -28,7 +28,7 @@ from sim_nodes.problem import Problem
 from sim_nodes.ros.common import EVENT_QOS, qos_profile, spin_guarded, stamp_ns, topic_names
 
 CALL_TIMEOUT_S = 30.0      # [s] for a service call to a node
-END_EVENTS = ('goal', 'step_limit')
+END_EVENTS = ('goal', 'step_limit', 'end_stop')
 
 
 class LaunchNode(Node):

@@ -190,18 +190,29 @@ def event_summary(event: dict) -> dict:
     """Return, delta*, steps of an episode end event (delta* inf as in ``sapga eval``)."""
     dstar = event.get('delta_star')
     return {'return': event.get('return'), 'delta_star': math.inf if dstar is None else dstar,
-            'steps': event.get('step'), 'reached': event.get('event') == 'goal'}
+            'steps': event.get('step'),
+            'reached': event.get('event') == 'goal' or event.get('first_entry_step') is not None,
+            **{k: event.get(k) for k in HOLD_KEYS}}
+
+
+HOLD_KEYS = ('first_entry_step', 'hold_fraction', 'rail_contacts')
 
 
 def same_episode(ros_ep: dict, offline: dict) -> bool:
-    """Exactly equal return, delta*, steps and goal."""
-    return all(ros_ep[k] == offline[k] for k in ('return', 'delta_star', 'steps', 'reached'))
+    """Exactly equal return, delta*, steps, goal and hold measures."""
+    return all(ros_ep[k] == offline[k] for k in ('return', 'delta_star', 'steps', 'reached',
+                                                 *HOLD_KEYS))
 
 
 def episode_lines(ends: list[dict]) -> list[str]:
-    lines = [f'{"episode":>7} {"end":<10} {"steps":>5} {"return":>12} {"delta*":>9}']
+    lines = [f'{"episode":>7} {"end":<10} {"steps":>5} {"return":>12} {"delta*":>9} '
+             f'{"1st in":>6} {"hold":>6} {"rail":>4}']
     for e in ends:
         s = event_summary(e)
+        hold = s['hold_fraction']
         lines.append(f'{e.get("episode", "?"):>7} {e.get("event"):<10} {s["steps"]:>5} '
-                     f'{s["return"]:>12.4f} {s["delta_star"]:>9.5f}')
+                     f'{s["return"]:>12.4f} {s["delta_star"]:>9.5f} '
+                     f'{s["first_entry_step"] or "-"!s:>6} '
+                     f'{"-" if hold is None else format(hold, ".4f"):>6} '
+                     f'{s["rail_contacts"]!s:>4}')
     return lines

@@ -73,7 +73,8 @@ def greedy(q, cell):
 @kernel
 def learn(model, q, visited, rng, s0, p, actions, idx, low, width, tiles, best, inv_scale,
           fixed, is_angle, delta, n_step, epsilon, eta, gamma, alt_inv_scale, alt_fixed,
-          budget, ep_return, ep_steps, ep_dstar, ep_dstar_alt, width_lanes, done, n_ep):
+          ends_in_goal, hold_bonus, budget, ep_return, ep_steps, ep_dstar, ep_dstar_alt,
+          width_lanes, done, n_ep):
     """Run whole episodes of model number ``model`` in each lane k until ``budget[k]`` steps
     are spent (or ``ep_return[k]`` is full): lane k learns its own table ``q[k]``
     (``visited[k]``, generator word ``rng[k]``) and no lane reads another's.
@@ -83,6 +84,8 @@ def learn(model, q, visited, rng, s0, p, actions, idx, low, width, tiles, best, 
     lane's run is bit-identical to the same run alone.  Per-episode measures go into row k
     of the ep_* arrays (``ep_dstar_alt``: delta* under the alternative goal reading, if
     alt_inv_scale is not empty); ``done[k]``, ``n_ep[k]``: steps simulated, episodes run.
+    With ``ends_in_goal`` false (the hold task) S_delta is not terminal and a step ending
+    there earns ``hold_bonus`` besides its reward, as in the episode engine.
     """
     lanes = q.shape[0]
     dim = s0.shape[0]
@@ -135,9 +138,12 @@ def learn(model, q, visited, rng, s0, p, actions, idx, low, width, tiles, best, 
                 continue
             s = S[:, k]
             r = r_buf[k]
-            total[k] += r
             t[k] += 1
             d = goal_delta(s, best, inv_scale, fixed, is_angle)
+            terminal = d <= delta and ends_in_goal
+            if d <= delta and not ends_in_goal:
+                r += hold_bonus
+            total[k] += r
             if d < dstar[k]:
                 dstar[k] = d
             if alt:
@@ -147,13 +153,13 @@ def learn(model, q, visited, rng, s0, p, actions, idx, low, width, tiles, best, 
             nxt = cell_index(s, idx, low, width, tiles)
             qk = q[k]
             target = r
-            if d > delta:                      # not terminal: bootstrap
+            if not terminal:                   # bootstrap
                 target += gamma * qk[nxt, greedy(qk, nxt)]
             c, a = cell[k], act[k]
             qk[c, a] += eta * (target - qk[c, a])
             visited[k, c] = True
             cell[k] = nxt
-            if d <= delta or t[k] >= n_step:   # the episode ends
+            if terminal or t[k] >= n_step:     # the episode ends
                 e = n_ep[k]
                 ep_return[k, e] = total[k]
                 ep_steps[k, e] = t[k]
@@ -169,7 +175,10 @@ def learn(model, q, visited, rng, s0, p, actions, idx, low, width, tiles, best, 
 
 @kernel
 def greedy_episode(model, q, s0, p, actions, idx, low, width, tiles, best, inv_scale, fixed,
-                   is_angle, delta, n_step, tr_state, tr_action, tr_reward):
+                   is_angle, delta, n_step, ends_in_goal, hold_bonus, contact_below,
+                   fail_on_contact, tr_state, tr_action, tr_reward, hold):
+    """The greedy policy's traced episode, with the episode engine's goal, hold-task and
+    end-stop rules; hold = [first entry step (0: none), steps held, end-stop contacts]."""
     dim = s0.shape[0]
     S = np.empty((dim, 1))
     S[:, 0] = s0
@@ -181,6 +190,7 @@ def greedy_episode(model, q, s0, p, actions, idx, low, width, tiles, best, inv_s
     dstar = goal_delta(s, best, inv_scale, fixed, is_angle)
     t = 0
     reached = False
+    hold[:] = 0
     while t < n_step:
         cell = cell_index(s, idx, low, width, tiles)
         a = greedy(q, cell)
@@ -194,8 +204,18 @@ def greedy_episode(model, q, s0, p, actions, idx, low, width, tiles, best, inv_s
         d = goal_delta(s, best, inv_scale, fixed, is_angle)
         if d < dstar:
             dstar = d
+        hit = r_buf[0] < contact_below
+        if hit:
+            hold[2] += 1
         if d <= delta:
             reached = True
+            if hold[0] == 0:
+                hold[0] = t
+            hold[1] += 1
+            if ends_in_goal:
+                break
+            total += hold_bonus
+        if hit and fail_on_contact:
             break
     return total, t, dstar, reached
 
@@ -224,12 +244,15 @@ class QTable:
         tr_state = np.zeros((n_step + 1, pr.dim))
         tr_a = np.zeros(n_step, dtype=np.int64)
         tr_r = np.zeros(n_step)
+        hold = np.zeros(3, dtype=np.int64)
         ret, steps, dstar, reached = greedy_episode(
             model_id(pr.model), self.q, pr.initial_state, pr.params(), pr.action_values,
-            *self.tiling, *goal_arrays(pr), pr.is_angle, delta, n_step, tr_state, tr_a, tr_r)
+            *self.tiling, *goal_arrays(pr), pr.is_angle, delta, n_step, pr.ends_in_goal,
+            pr.hold_bonus, pr.contact_below, pr.end_stop == 'fail', tr_state, tr_a, tr_r, hold)
         a = tr_a[:steps]
         return Episode(tr_state[:steps + 1].copy(), pr.action_values[a], np.full(steps, -1),
-                       tr_r[:steps].copy(), float(ret), int(steps), float(dstar), bool(reached))
+                       tr_r[:steps].copy(), float(ret), int(steps), float(dstar), bool(reached),
+                       None, *(int(h) for h in hold))
 
     def to_json(self) -> str:
         pr = self.problem

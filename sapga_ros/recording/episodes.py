@@ -31,7 +31,7 @@ class Episode:
     number: int | None
     start_ns: int | None = None     # sim time of its first state (the start event's 'time')
     end_ns: int | None = None       # sim time of its last state (the end event's 'time')
-    end: str = 'incomplete'         # goal | step_limit | reset | incomplete
+    end: str = 'incomplete'         # goal | step_limit | end_stop | reset | incomplete
     end_event: dict[str, Any] | None = None
     rewards: list[float] = field(default_factory=list)
     states: dict[int, np.ndarray | None] = field(default_factory=dict)  # stamp [ns] -> state
@@ -253,7 +253,16 @@ def episode_summary(ep: Episode, problem: Any, goal_delta: float | None) -> dict
         and not isinstance(ev.get('late_commands'), bool) else None,
         'return_from_rewards': _json_number(ret_rewards),
         'delta_star_from_states': _json_number(delta_states),
+        **_hold(ep, problem, states, gd),
     }
+
+
+def _hold(ep: Episode, problem: Any, states: np.ndarray, gd: float | None) -> dict[str, Any]:
+    """The hold measures from the recorded states and rewards (None without a layout)."""
+    if problem is None or gd is None or not len(states):
+        return {'first_entry_step': None, 'hold_fraction': None, 'rail_contacts': None}
+    from sim_nodes.goal import trace_hold
+    return trace_hold(problem, states, ep.rewards, gd)
 
 
 def _action_key(v: float) -> str:

@@ -26,7 +26,7 @@ DEFAULT_ROLE_TOPICS = {'state': 'joint_states', 'command': 'command', 'reward': 
 # Roles a run may leave without a publisher: the hand-use Float64 command (the policy node
 # answers on command_stamped).  A recorder is ready without one; one that appears is recorded.
 OPTIONAL_ROLES = ('command',)
-EPISODE_END_EVENTS = ('goal', 'step_limit', 'reset')
+EPISODE_END_EVENTS = ('goal', 'step_limit', 'end_stop', 'reset')
 MAX_EVENT_CHARS = 65536     # an episode event is a few hundred characters
 
 

@@ -114,13 +114,16 @@ def format_summary(s: dict[str, Any]) -> str:
                  'goal)')
     if s['episodes']:
         lines.append(f'  {"#":>4} {"end":<10} {"steps":>6} {"return":>10} {"delta*":>9} '
-                     f'{"to goal":>11}  actions')
+                     f'{"to goal":>11} {"1st in":>6} {"hold":>6} {"rail":>4}  actions')
         for e in s['episodes']:
             actions = ' '.join(f'{k}:{n}' for k, n in e['actions'].items()) or '-'
             to_goal = e['steps_to_goal'] if e['reached_goal'] else 'not reached'
             lines.append(f'  {fmt(e["episode"], "d"):>4} {e["end"]:<10} '
                          f'{fmt(e["steps"], "d"):>6} {fmt(e["return"], ".2f"):>10} '
-                         f'{fmt(e["delta_star"], ".4f"):>9} {to_goal!s:>11}  {actions}')
+                         f'{fmt(e["delta_star"], ".4f"):>9} {to_goal!s:>11} '
+                         f'{fmt(e["first_entry_step"], "d"):>6} '
+                         f'{fmt(e["hold_fraction"], ".4f"):>6} {fmt(e["rail_contacts"], "d"):>4}'
+                         f'  {actions}')
     return '\n'.join(lines)
 
 

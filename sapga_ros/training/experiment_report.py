@@ -75,8 +75,10 @@ def summarise(exp: Experiment, runs: Iterable[dict], budget: int) -> dict:
                           f'{key}_ci95': bootstrap_ci(values)})
             if key == 'delta_star_alt':
                 final['achieved_alt'] = sum(_reaches(v, exp.delta) for v in values)
+    if all('hold_fraction' in f for f in finals):
+        final.update(hold_summary(finals))
     return {'id': exp.id, 'problem': exp.problem, 'method': exp.method, 'delta': exp.delta,
-            'style': exp.style, 'variant': exp.variant, 'paper': exp.paper,
+            'style': exp.style, 'variant': exp.variant, 'catch': exp.catch, 'paper': exp.paper,
             'group': exp.group,
             'steps': budget, 'seeds': seeds, 'grid': grid.tolist(),
             'best_value': stat(best), 'delta_star': stat(dstar),
@@ -105,6 +107,21 @@ def bootstrap_ci(values: list[float], level: float = 0.95, resamples: int = 10_0
     return [float(np.quantile(means, tail)), float(np.quantile(means, 1.0 - tail))]
 
 
+def hold_summary(finals: list[dict]) -> dict:
+    """The hold task's measures over the runs: hold fraction (mean, std, 95 % interval),
+    runs holding >= 0.95, runs holding >= 0.9 with no rail contact, first entry step (mean
+    over the runs that entered), rail contacts (mean)."""
+    hold = [f['hold_fraction'] for f in finals]
+    entered = [f['first_entry_step'] for f in finals if f['first_entry_step'] is not None]
+    return {'hold_fraction_mean': float(np.mean(hold)), 'hold_fraction_std': float(np.std(hold)),
+            'hold_fraction_ci95': bootstrap_ci(hold),
+            'holding': int(sum(h >= 0.95 for h in hold)),
+            'holding_clean': int(sum(f['hold_fraction'] >= 0.9 and f['rail_contacts'] == 0
+                                     for f in finals)),
+            'first_entry_mean': float(np.mean(entered)) if entered else None,
+            'rail_contacts_mean': float(np.mean([f['rail_contacts'] for f in finals]))}
+
+
 def markdown_table(summaries: list[dict]) -> str:
     """The final measures of each experiment as a Markdown table."""
     lines = ['| # | problem | delta | method | style | steps | achieved | best value | '
@@ -117,4 +134,20 @@ def markdown_table(summaries: list[dict]) -> str:
                      f"| {f['best_value_mean']:.1f} ± {f['best_value_std']:.1f} "
                      f"| {f['delta_star_mean']:.4f} ± {f['delta_star_std']:.4f} "
                      f"| {s.get('timing', {}).get('steps_per_s_mean', math.nan) / 1e3:,.0f} k |")
+    held = [s for s in summaries if 'holding' in s['final']]
+    if held:
+        lines += ['', '| # | problem | method | hold fraction | 95 % interval | >= 0.95 | '
+                  '>= 0.9, no rail contact | first entry step | rail contacts |',
+                  '|---|---|---|---|---|---|---|---|---|']
+        for s in held:
+            f = s['final']
+            ci = f['hold_fraction_ci95']
+            ci = '-' if ci is None else f'[{ci[0]:.3f}, {ci[1]:.3f}]'
+            first = '-' if f['first_entry_mean'] is None else f"{f['first_entry_mean']:.0f}"
+            method = s['method'] + (' + LQR catch' if s.get('catch', 'none') != 'none' else '')
+            lines.append(f"| {s['id']} | {s['problem']} | {method} "
+                         f"| {f['hold_fraction_mean']:.3f} ± {f['hold_fraction_std']:.3f} "
+                         f"| {ci} | {f['holding']}/{f['runs']} "
+                         f"| {f['holding_clean']}/{f['runs']} | {first} "
+                         f"| {f['rail_contacts_mean']:.2f} |")
     return '\n'.join(lines) + '\n'

@@ -18,7 +18,8 @@ from sim_nodes.params import DELTA
 from sim_nodes.problem import Problem, config_dir, load_problem
 
 MAX_SET_BYTES = 1 << 20
-METHODS = ('sapga', 'ql', 'cmaes')
+METHODS = ('sapga', 'ql', 'cmaes', 'classical')
+CATCHES = ('none', 'lqr')
 CMAES_POP = 100        # CMA-ES candidates per generation in experiments (batches use the engine)
 MAX_SEEDS = 10_000
 MAX_STEPS = 10 ** 12
@@ -42,6 +43,7 @@ class Experiment:
     group: str = 'paper'                   # paper | ablation | peer (report sections)
     variant: str = 'paper'                 # SAP-GA variant (optim/sapga.py VARIANTS)
     seeds: int | None = None               # this row's seed count (None: the set's)
+    catch: str = 'none'                    # lqr: the hybrid (sapga train --catch lqr)
 
 
 def _count(value: Any, where: str, low: int, high: int) -> int:
@@ -99,10 +101,14 @@ def _experiment(e: Any, where: str) -> Experiment:
                      _text(e, 'paper', where, '', 300), _text(e, 'group', where, 'paper', 40),
                      _text(e, 'variant', where, 'paper', 40),
                      None if e.get('seeds') is None else
-                     _count(e['seeds'], f'{where}.seeds', 1, MAX_SEEDS))
+                     _count(e['seeds'], f'{where}.seeds', 1, MAX_SEEDS),
+                     _text(e, 'catch', where, 'none', 40))
     if not _WORD_RE.fullmatch(exp.group):
         raise ConfigError(f'{where}.group: expected a word (letters, digits, _ and -), '
                           f'got {exp.group!r}')
+    if exp.catch not in CATCHES or (exp.catch != 'none' and exp.method != 'sapga'):
+        raise ConfigError(f'{where}.catch: expected one of {", ".join(CATCHES)} (lqr: SAP-GA '
+                          f'rows only), got {exp.catch!r}')
     from sapga_ros.optim.sapga import VARIANTS
     if exp.variant not in VARIANTS:
         raise ConfigError(f'{where}.variant: unknown variant {exp.variant!r} '
@@ -205,7 +211,9 @@ def run_seeds(exp: Experiment, seeds: list[int], steps: int) -> list[dict]:
     from sapga_ros.optim.sapga import SapgaParams
     from sapga_ros.training.loop import TrainConfig, train, train_lanes
     start, compiled = time.perf_counter(), compile_seconds()
-    if exp.method == 'cmaes':
+    if exp.method == 'classical':       # deterministic: the same controller every seed
+        done = [_classical(exp) for _ in seeds]
+    elif exp.method == 'cmaes':
         from sapga_ros.optim.cmaes import train_cmaes
         set_jobs(1)
         done = [train_cmaes(exp.problem, exp.delta, steps, seed, popsize=CMAES_POP)
@@ -213,7 +221,8 @@ def run_seeds(exp: Experiment, seeds: list[int], steps: int) -> list[dict]:
     else:
         configs = [TrainConfig(problem=exp.problem, method=exp.method, delta=exp.delta,
                                steps=steps, seed=seed, jobs=1,
-                               params=SapgaParams(style=exp.style, variant=exp.variant))
+                               params=SapgaParams(style=exp.style, variant=exp.variant),
+                               catch=exp.catch)
                    for seed in seeds]
         if exp.method == 'ql' and len(configs) > 1:
             results = train_lanes(configs)
@@ -239,9 +248,24 @@ def _run(exp: Experiment, seed: int, policy: Any, hist: list[dict], wall: float,
            'best_value': [r['best_value'] for r in hist],
            'delta_star': [r['delta_star'] for r in hist], 'final': final,
            'seconds': wall * last['steps'] / max(total, 1), 'lanes': lanes}
+    if not load_problem(exp.problem).ends_in_goal:   # the hold task's measures
+        from sapga_ros.training.loop import hold_of
+        final.update(hold_of(policy, exp.delta))
     if exp.method == 'ql':
         final['greedy_delta_star'] = policy.meta.get('delta_star')
         final['greedy_value'] = policy.meta.get('value')
     else:
         run['policy'] = policy.to_document()
     return run
+
+
+def _classical(exp: Experiment) -> tuple[Any, list[dict]]:
+    """The classical controller of ``exp.problem`` and a one-row log (no search: 0 steps
+    beyond its one evaluated episode)."""
+    from sapga_ros.evaluation.evaluator import Evaluator
+    from sapga_ros.policies.classical import classical_policy
+    problem = load_problem(exp.problem)
+    policy = classical_policy(problem)
+    ep = Evaluator(problem, exp.delta).episode(policy)
+    policy.meta.update(value=ep.ret, delta_star=ep.delta_star)
+    return policy, [{'steps': ep.steps, 'best_value': ep.ret, 'delta_star': ep.delta_star}]

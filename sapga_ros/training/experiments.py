@@ -39,7 +39,7 @@ def run_key(name: str, exp: Experiment, seed: int, budget: int) -> dict:
     """What a run's result depends on (not the row's description): a stored run is reused
     only for the same key."""
     settings = {k: v for k, v in asdict(exp).items()
-                if k not in ('paper', 'group', 'seeds')}
+                if k not in ('paper', 'group', 'seeds') and (k, v) != ('catch', 'none')}
     return {'set': name, 'experiment': settings, 'seed': seed, 'steps': budget}
 
 
@@ -266,7 +266,9 @@ def _summarise(name: str, exps: list[Experiment], row_seeds: dict, budgets: dict
             f'{budgets[exp.id]:,d} steps: achieved '
             f"{f['achieved']}/{f['runs']}, best value {f['best_value_mean']:.1f} +- "
             f"{f['best_value_std']:.1f}, delta* {f['delta_star_mean']:.4f} +- "
-            f"{f['delta_star_std']:.4f}")
+            f"{f['delta_star_std']:.4f}"
+            + (f", hold fraction {f['hold_fraction_mean']:.3f} +- {f['hold_fraction_std']:.3f}"
+               f" ({f['holding']}/{f['runs']} >= 0.95)" if 'holding' in f else ''))
     write_json(out / 'summary.json', summaries, indent=1)
     write_atomic(out / 'summary.md', markdown_table(summaries))
     return summaries

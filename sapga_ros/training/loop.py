@@ -61,6 +61,9 @@ class TrainConfig:
     checkpoint_every: int = param(0, 'rounds (SAP-GA generations, Q-learning chunks) '
                                   'between checkpoints besides; 0: by time only', low=0)
     resume: bool = param(False, 'continue from the checkpoint in the checkpoint directory')
+    catch: str = param('none', 'lqr: every policy hands over to the problem\'s LQR inside '
+                       'its catch region x\'Px <= c (the hybrid; SAP-GA only); none: not',
+                       choices=('none', 'lqr'))
     params: SapgaParams = field(default_factory=SapgaParams)
     ql: QlParams = field(default_factory=QlParams)
 
@@ -195,11 +198,20 @@ def _rounds(config: TrainConfig, initial: list[ExemplarPolicy] = (),
     delta = problem.resolve('delta', config.delta)
     jobs = set_jobs(config.jobs)
     evaluator = Evaluator(problem, delta)
+    catch = None
+    if config.catch == 'lqr':
+        if config.method != 'sapga':
+            raise ConfigError('--catch lqr hands exemplar policies over to the LQR: SAP-GA only')
+        from sapga_ros.policies.classical import classical_policy, with_catch
+        catch = with_catch(ExemplarPolicy(problem, np.zeros((0, problem.dim))),
+                           classical_policy(problem))
+        evaluator.catch = catch.control
     opt, history = _start(config, problem, delta, list(initial))
     start = last_save = time.perf_counter()
     steps_at_start, compiled_at_start = opt.steps, compile_seconds()
     alt_star = min([math.inf] + [r['delta_star_alt'] for r in history[-1:]
                                  if r.get('delta_star_alt') is not None])
+    hold: dict = {}
     while not (reasons := opt.stop(config.steps)):
         if should_stop and should_stop():
             reasons = {'should_stop': True}
@@ -210,8 +222,13 @@ def _rounds(config: TrainConfig, initial: list[ExemplarPolicy] = (),
         opt.tell(*results)
         alt_star = min(alt_star, alt)
         if on_best and opt.best is not best_before:
-            on_best(_best_policy(config, opt, delta, jobs))
+            on_best(_best_policy(config, opt, delta, jobs, catch))
         row = opt.counters()
+        if not problem.ends_in_goal:    # the hold task: the best policy's hold measures
+            if opt.best is not best_before or not hold or config.method == 'ql':
+                meta = _best_policy(config, opt, delta, jobs, catch).meta
+                hold = {f'best_{k}': meta[k] for k in HOLD_KEYS}
+            row.update(hold)
         if problem.goal_alt_scale is not None and 'delta_star_alt' not in row:
             row['delta_star_alt'] = alt_star   # the alternative goal reading, same runs
         now = time.perf_counter()
@@ -227,12 +244,23 @@ def _rounds(config: TrainConfig, initial: list[ExemplarPolicy] = (),
             _save(config, problem, delta, opt, history)
         if timely:
             if on_save:
-                on_save(_best_policy(config, opt, delta, jobs), history)
+                on_save(_best_policy(config, opt, delta, jobs, catch), history)
             last_save = time.perf_counter()
     if config.checkpoint:
         _save(config, problem, delta, opt, history)
-    return TrainResult(_best_policy(config, opt, delta, jobs), history, opt.counters(),
+    return TrainResult(_best_policy(config, opt, delta, jobs, catch), history, opt.counters(),
                        reasons)
+
+
+def hold_of(policy: Any, delta: float) -> dict:
+    """The hold measures of ``policy``'s episode (first_entry_step, hold_fraction,
+    rail_contacts)."""
+    from sapga_ros.evaluation.any_policy import run_policy_episode
+    summary = run_policy_episode(policy, delta).summary()
+    return {k: summary[k] for k in HOLD_KEYS}
+
+
+HOLD_KEYS = ('first_entry_step', 'hold_fraction', 'rail_contacts')
 
 
 def train_sapga(config: TrainConfig, initial: list[ExemplarPolicy] = (),
@@ -243,15 +271,22 @@ def train_sapga(config: TrainConfig, initial: list[ExemplarPolicy] = (),
     return train(replace(config, method='sapga'), initial, progress, on_best, should_stop)
 
 
-def _best_policy(config: TrainConfig, opt: Optimizer, delta: float, jobs: int) -> Any:
-    """The best policy so far, with its provenance in ``meta``."""
+def _best_policy(config: TrainConfig, opt: Optimizer, delta: float, jobs: int,
+                 catch: Any = None) -> Any:
+    """The best policy so far, with its provenance in ``meta`` (behind ``catch``, the
+    hybrid's LQR, if given)."""
     result = opt.result
     if result is None:
         raise ConfigError('the run ended before its first evaluation: no policy to return')
     policy = result.policy
+    if catch is not None:
+        from sapga_ros.policies.classical import with_catch
+        policy = with_catch(policy, catch)
     policy.meta = {**result.meta, 'delta': delta, 'seed': config.seed, 'jobs': jobs,
                    'software': f'sapga_ros {__version__}',
                    'time': time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime())}
+    if not policy.problem.ends_in_goal:
+        policy.meta.update(hold_of(policy, delta))
     return policy
 
 

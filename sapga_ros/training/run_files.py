@@ -56,6 +56,14 @@ def check_run(doc: Any, where: str, seed: int | None = None) -> dict:
     for key in ('steps_per_s', 'delta_star_alt', 'greedy_delta_star', 'greedy_value'):
         if key in f:
             final[key] = schema.number(f[key], f'{fw}.{key}', null=True)
+    if 'hold_fraction' in f:       # the hold measures of the returned policy's episode
+        final['hold_fraction'] = schema.number(f['hold_fraction'], f'{fw}.hold_fraction',
+                                               low=0, high=1)
+        first = schema.field(f, 'first_entry_step', fw)
+        final['first_entry_step'] = None if first is None else schema.integer(
+            first, f'{fw}.first_entry_step', 0, MAX_COUNT)
+        final['rail_contacts'] = schema.integer(schema.field(f, 'rail_contacts', fw),
+                                                f'{fw}.rail_contacts', 0, MAX_COUNT)
     record = {'seed': got_seed, 'steps': steps, 'best_value': best, 'delta_star': dstar,
               'final': final,
               'seconds': schema.number(run.get('seconds', 0.0), f'{where}.seconds', 0),

@@ -30,6 +30,7 @@ from sim_nodes.models import pack_physics
 from sim_nodes.models.common import clip, wrap_angle
 from sim_nodes.models.trig import sin, sincos
 
+END_STOP_PENALTY = 'rail_penalty'  # added on a rail contact (counted as rail_contacts)
 PARAMS = ('m0', 'm1', 'm2', 'l1', 'l2', 'g', 'x_max', 'v_max', 'theta_dot_max', 'rail_penalty')
 # physics parameters that must be > 0 (the problem YAML is refused otherwise)
 POSITIVE = ('m0', 'm1', 'm2', 'l1', 'l2', 'x_max', 'v_max', 'theta_dot_max')

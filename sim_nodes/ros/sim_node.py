@@ -30,7 +30,7 @@ from std_msgs.msg import Float64, String
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
-from sim_nodes.goal import goal_arrays, goal_delta
+from sim_nodes.goal import goal_arrays, goal_delta, hold_measures
 from sim_nodes.models import MODELS, model_module
 from sim_nodes.models.registry import GENERIC_SIM, sim_executable
 from sim_nodes.problem import load_problem
@@ -102,6 +102,8 @@ class SimNode(Node):
         self._step = 0                 # MDP steps in this episode
         self._return = 0.0
         self._delta_star = math.inf
+        self._contact_below = problem.contact_below  # a reward below: an end-stop contact
+        self._hold = [0, 0, 0]         # first step in S_delta (0: none), steps held, contacts
         self._effort = 0.0             # applied in the step that produced the state
         self._command = 0.0            # realtime: held command
         self._late_before = 0          # late commands before this episode
@@ -225,13 +227,23 @@ class SimNode(Node):
         d = self._delta_of_state()
         if d < self._delta_star:
             self._delta_star = d
+        hit = reward < self._contact_below
+        self._hold[2] += hit
+        inside = d <= self.settings.delta
+        if inside:
+            self._hold[0] = self._hold[0] or self._step
+            self._hold[1] += 1
+            if not self.problem.ends_in_goal:       # the hold task: bonus, no end
+                self._return += self.problem.hold_bonus
         self._effort = action
         self._tick += 1
         self._reward_msg.data = reward
         self._reward_pub.publish(self._reward_msg)
         self._publish_state()
-        if d <= self.settings.delta:
+        if inside and self.problem.ends_in_goal:
             self._end_episode('goal', d)
+        elif hit and self.problem.end_stop == 'fail':
+            self._end_episode('end_stop', d)
         elif self._step >= self.settings.n_step:
             self._end_episode('step_limit', d)
 
@@ -240,6 +252,7 @@ class SimNode(Node):
         self._episode += 1
         self._step = 0
         self._return = 0.0
+        self._hold = [0, 0, 0]
         self._effort = 0.0
         self._late_before = self.commands.late
         self._delta_star = d = self._delta_of_state()
@@ -280,7 +293,8 @@ class SimNode(Node):
                'delta_star': _json_number(self._delta_star),
                'goal_delta': self.settings.delta,
                'time': self._tick * self._tick_ns / 1e9,   # sim time of the state [s]
-               'late_commands': self.commands.late - self._late_before}
+               'late_commands': self.commands.late - self._late_before,
+               **hold_measures(*self._hold[:2], self._step, self._hold[2])}
         self._event_pub.publish(String(data=json.dumps(doc)))
 
 

@@ -1,0 +1,1 @@
+"""Policies that are not (only) exemplars: the classical controller and the LQR catch."""

@@ -1,0 +1,270 @@
+"""The classical controller and the LQR catch as policies (policy ``kind`` ``classical``,
+and an exemplar policy with a ``catch``).
+
+A classical policy file::
+
+    {"format": "sapga-policy/1", "kind": "classical", "problem": "acrobot_hold",
+     "state_names": [...], "actions": [...],
+     "controller": {"K": [D numbers], "P": [D rows of D numbers], "c": number,
+                    "swing_up": {"law": "acrobot-energy", "gains": {...}}},
+     "meta": {...}}
+
+A hybrid (exemplars + catch) is an ordinary exemplar policy document with one more field,
+``"catch": {"K": [...], "P": [[...]], "c": number}``.  Both are parsed as hostile input:
+every number finite, every shape checked, the law and gain names known; the error names
+the field.  In memory both are ``ControlledPolicy``: an ``ExemplarPolicy`` (no exemplars for
+the classical kind) with its packed controller row ``control``
+(``sapga_ros.policies.control``), so the episode engine, the traced episode and the policy
+node run them like any exemplar policy.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from sapga_ros.errors import PolicyFileError, SapgaError
+from sapga_ros.exemplars.policy import (FORMAT, ExemplarPolicy, _check_finite_tree, _finite,
+                                        json_safe)
+from sapga_ros.policies import control as C
+from sapga_ros.policies.lqr import regulator
+from sim_nodes.problem import Problem, load_problem
+
+KIND = 'classical'
+LAWS = {  # law -> (swing-up kind, gain names in order)
+    'acrobot-energy': (C.SWING_ACROBOT, ('kp', 'kd', 'ke')),
+    'cart-energy': (C.SWING_CART, ('ke', 'kx', 'kv')),
+}
+
+
+@dataclass(frozen=True)
+class Design:
+    """A model's default classical design (chosen by a grid search on the hold problems'
+    own episode from the initial state: docs/hold.md)."""
+
+    law: str
+    effort: float          # LQR R weight (``sapga_ros.policies.lqr``)
+    basin_margin: float    # catch region c = this x the empirical basin (``basin_c``)
+    gains: tuple           # swing-up gains, in LAWS order
+
+
+DESIGNS = {
+    'acrobot': Design('acrobot-energy', 1e-4, 16.0, (5.0, 0.0, 3.0)),
+    'pdip': Design('cart-energy', 1.0, 2.0, (1.0, 10.0, 0.0)),
+}
+
+
+@dataclass
+class ControlledPolicy(ExemplarPolicy):
+    """An exemplar policy behind a controller (classical: no exemplars)."""
+
+    kind: str = 'exemplar'                  # 'classical' or 'exemplar' (a hybrid)
+    K: np.ndarray | None = None             # (D,) LQR gain
+    P: np.ndarray | None = None             # (D, D) Riccati solution
+    c: float = 0.0                          # catch region x'Px <= c
+    law: str = ''                           # swing-up law (classical)
+    gains: dict | None = None               # swing-up gains (classical)
+
+    @property
+    def control(self) -> np.ndarray:
+        """The packed controller row ``sapga_ros.policies.control.choose`` takes."""
+        dim = self.problem.dim
+        row = np.zeros(C.HEAD + dim + dim * dim)
+        row[C.MODE] = C.CLASSICAL if self.kind == KIND else C.CATCH
+        row[C.C] = self.c
+        if self.kind == KIND:
+            kind, names = LAWS[self.law]
+            row[C.SWING] = kind
+            consts = swing_constants(self.problem, kind, [self.gains[n] for n in names])
+            row[C.GAINS:C.GAINS + len(consts)] = consts
+        row[C.HEAD:C.HEAD + dim] = self.K
+        row[C.HEAD + dim:] = self.P.reshape(-1)
+        return row
+
+    def controller_document(self) -> dict[str, Any]:
+        doc = {'K': [float(v) for v in self.K], 'P': [[float(v) for v in r] for r in self.P],
+               'c': float(self.c)}
+        if self.kind == KIND:
+            doc['swing_up'] = {'law': self.law, 'gains': dict(self.gains)}
+        return doc
+
+    def to_json(self) -> str:
+        if self.kind != KIND:
+            return super().to_json()
+        return json.dumps(self.to_document(), indent=1, allow_nan=False) + '\n'
+
+    def to_document(self) -> dict[str, Any]:
+        if self.kind != KIND:
+            return {**super().to_document(), 'catch': self.controller_document()}
+        pr = self.problem
+        return {'format': FORMAT, 'kind': KIND, 'problem': pr.name,
+                'state_names': list(pr.state_names), 'actions': list(pr.actions),
+                'controller': self.controller_document(), 'meta': json_safe(self.meta)}
+
+
+def swing_constants(problem: Problem, kind: int, gains: list[float]) -> list[float]:
+    """The swing-up constants of ``control.swing_up`` from the model's physics."""
+    ph = problem.physics
+    if kind == C.SWING_ACROBOT:
+        m1, m2, l1, lc1, lc2 = ph['m1'], ph['m2'], ph['l1'], ph['lc1'], ph['lc2']
+        i1, i2, g = ph['I1'], ph['I2'], ph['g']
+        g1, g2 = g * (m1 * lc1 + m2 * l1), g * m2 * lc2
+        return [m1 * lc1 ** 2 + m2 * (l1 ** 2 + lc2 ** 2) + i1 + i2, 2 * m2 * l1 * lc2,
+                m2 * lc2 ** 2 + i2, m2 * l1 * lc2, m2 * lc2 ** 2 + i2, g1, g2, g1 + g2, *gains]
+    m1, m2, l1, l2, g = ph['m1'], ph['m2'], ph['l1'], ph['l2'], ph['g']
+    first = problem.state_names.index('theta1')
+    return [m1 * l1, m2 * l2, 4 / 3 * m1 * l1 ** 2, 4 / 3 * m2 * l2 ** 2, g,
+            g * (m1 * l1 + m2 * l2), *gains, float(first)]
+
+
+def classical_policy(problem: Problem, gains: dict | None = None, c: float | None = None,
+                     effort: float | None = None) -> ControlledPolicy:
+    """The LQR about the upright state behind the model's energy swing-up (``DESIGNS``;
+    ``gains``, ``c`` and ``effort`` override the design's)."""
+    design = DESIGNS.get(problem.model)
+    if design is None:
+        raise SapgaError(f'{problem.name}: no classical design for model {problem.model!r} '
+                         f'(known: {", ".join(DESIGNS)})')
+    reg = regulator(problem, design.effort if effort is None else effort)
+    names = LAWS[design.law][1]
+    g = dict(zip(names, design.gains))
+    for name, value in (gains or {}).items():
+        if name not in g:
+            raise SapgaError(f'unknown gain {name!r} of {design.law} (known: {", ".join(g)})')
+        g[name] = float(value)
+    policy = ControlledPolicy(problem, np.zeros((0, problem.dim)), kind=KIND, K=reg.K,
+                              P=reg.P, c=0.0 if c is None else c, law=design.law, gains=g,
+                              meta={'controller': 'LQR + energy swing-up'})
+    if c is None:
+        policy.c = design.basin_margin * basin_c(policy, problem.default_delta)
+    return policy
+
+
+def with_catch(policy: ExemplarPolicy, catch: ControlledPolicy) -> ControlledPolicy:
+    """``policy`` handing over to the LQR of ``catch`` inside its x'Px <= c."""
+    return ControlledPolicy(policy.problem, policy.states, policy.actions, policy.meta,
+                            policy.style, policy.values,
+                            policy.states2 if policy.states2.shape[1] else None,
+                            K=catch.K, P=catch.P, c=catch.c)
+
+
+def _vector(value: Any, length: int, where: str) -> np.ndarray:
+    if not isinstance(value, list) or len(value) != length:
+        raise PolicyFileError(f'{where}: expected a list of {length} numbers')
+    return np.array([_finite(v, f'{where}[{i}]') for i, v in enumerate(value)])
+
+
+def _controller(doc: Any, problem: Problem, where: str, classical: bool) -> dict:
+    if not isinstance(doc, dict):
+        raise PolicyFileError(f'{where}: expected an object with K, P, c')
+    for key in ('K', 'P', 'c') + (('swing_up',) if classical else ()):
+        if key not in doc:
+            raise PolicyFileError(f'{where}: missing field {key!r}')
+    dim = problem.dim
+    K = _vector(doc['K'], dim, f'{where}.K')
+    rows = doc['P']
+    if not isinstance(rows, list) or len(rows) != dim:
+        raise PolicyFileError(f'{where}.P: expected {dim} rows of {dim} numbers')
+    P = np.array([_vector(r, dim, f'{where}.P[{i}]') for i, r in enumerate(rows)])
+    c = _finite(doc['c'], f'{where}.c')
+    if c < 0:
+        raise PolicyFileError(f'{where}.c: expected a number >= 0, got {c}')
+    out = {'K': K, 'P': P, 'c': c}
+    if classical:
+        out.update(_swing_up(doc['swing_up'], f'{where}.swing_up'))
+    return out
+
+
+def _swing_up(doc: Any, where: str) -> dict:
+    if not isinstance(doc, dict) or not isinstance(doc.get('law'), str) or \
+            doc['law'] not in LAWS:
+        raise PolicyFileError(f'{where}.law: expected one of {", ".join(LAWS)}')
+    names = LAWS[doc['law']][1]
+    gains = doc.get('gains')
+    if not isinstance(gains, dict) or sorted(gains) != sorted(names):
+        raise PolicyFileError(f'{where}.gains: expected an object with {", ".join(names)}')
+    return {'law': doc['law'],
+            'gains': {n: _finite(gains[n], f'{where}.gains.{n}') for n in names}}
+
+
+def classical_from_document(doc: dict, problem: str | Problem | None,
+                            source: str) -> ControlledPolicy:
+    """Validate a ``kind: classical`` policy document."""
+    for key in ('format', 'problem', 'state_names', 'actions', 'controller'):
+        if key not in doc:
+            raise PolicyFileError(f'{source}: missing field {key!r}')
+    if doc['format'] != FORMAT:
+        raise PolicyFileError(f'{source}: format: expected {FORMAT!r}')
+    if not isinstance(doc['problem'], str):
+        raise PolicyFileError(f'{source}: problem: expected a string')
+    try:
+        prob = load_problem(doc['problem'])
+    except Exception as exc:  # noqa: BLE001 - reported as a policy file error
+        raise PolicyFileError(f'{source}: problem: {exc}') from exc
+    if problem is not None:
+        want = problem if isinstance(problem, str) else problem.name
+        if prob.name != want:
+            raise PolicyFileError(f'{source}: problem: policy is for {prob.name!r}, '
+                                  f'expected {want!r}')
+    if doc['state_names'] != list(prob.state_names):
+        raise PolicyFileError(f'{source}: state_names: expected {list(prob.state_names)}')
+    actions = doc['actions']
+    if not isinstance(actions, list) or \
+            [_finite(a, f'{source}: actions') for a in actions] != list(prob.actions):
+        raise PolicyFileError(f'{source}: actions: expected {list(prob.actions)}')
+    design = DESIGNS.get(prob.model)
+    ctl = _controller(doc['controller'], prob, f'{source}: controller', True)
+    if design is None or ctl['law'] != design.law:
+        raise PolicyFileError(f'{source}: controller.swing_up.law: {ctl["law"]} does not fit '
+                              f'model {prob.model}')
+    meta = doc.get('meta', {})
+    if not isinstance(meta, dict):
+        raise PolicyFileError(f'{source}: meta: expected an object')
+    _check_finite_tree(meta, f'{source}: meta')
+    return ControlledPolicy(prob, np.zeros((0, prob.dim)), meta=meta, kind=KIND, **ctl)
+
+
+def attach_catch(policy: ExemplarPolicy, doc: Any, source: str) -> ControlledPolicy:
+    """An exemplar policy read from a document with a ``catch`` field."""
+    ctl = _controller(doc, policy.problem, f'{source}: catch', False)
+    return ControlledPolicy(policy.problem, policy.states, policy.actions, policy.meta,
+                            policy.style, policy.values,
+                            policy.states2 if policy.states2.shape[1] else None, **ctl)
+
+
+def basin_c(policy: ControlledPolicy, delta: float, samples: int = 24, steps: int = 200,
+            seed: int = 0) -> float:
+    """The largest c of a halving ladder (from the ellipsoid inside S_1) such that the
+    quantised LQR, started from ``samples`` states on x'Px = c, ends every episode of
+    ``steps`` steps with its second half in S_delta: an empirical catch region
+    (deterministic in ``seed``)."""
+    import dataclasses
+
+    from sapga_ros.evaluation.evaluator import Evaluator
+    from sapga_ros.policies.lqr import half_widths, inscribed_c
+    from sim_nodes.goal import delta_of
+    pr = policy.problem
+    rng = np.random.default_rng(seed)
+    directions = rng.normal(size=(samples, pr.dim)) * half_widths(pr)
+    quad = np.einsum('ki,ij,kj->k', directions, policy.P, directions)
+    unit = directions / np.sqrt(quad)[:, None]        # x'Px = 1
+    c = inscribed_c(policy.P, pr, 1.0)
+    probe = ControlledPolicy(pr, np.zeros((0, pr.dim)), kind=KIND, K=policy.K, P=policy.P,
+                             c=np.inf, law=policy.law, gains=policy.gains)
+    for _ in range(40):
+        ok = True
+        for x in unit * np.sqrt(c):
+            start = dataclasses.replace(pr, initial=tuple(pr.best_state + x), n_step=steps)
+            probe.problem = start
+            ep = Evaluator(start, delta).episode(probe)
+            tail = ep.states[steps // 2:]
+            if ep.steps < steps or ep.contacts or \
+                    max(delta_of(pr, s) for s in tail) > delta:
+                ok = False
+                break
+        if ok:
+            return c
+        c /= 2.0
+    return 0.0

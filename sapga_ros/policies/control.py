@@ -1,0 +1,123 @@
+"""The compiled controller behind an exemplar selector: LQR catch and energy swing-up.
+
+``choose`` is what the episode engine, the traced episode and the ROS policy node call for
+every state: when the policy carries a controller (``ctl[MODE] != 0``) it is asked first,
+else, or when it declines, the exemplar selector ``select`` answers.  Modes:
+
+* ``CATCH`` (the hybrid): inside the region x'Px <= c around the upright state the LQR
+  answers, outside the exemplars do;
+* ``CLASSICAL``: inside the region the LQR answers, outside the energy swing-up does (no
+  exemplars).
+
+x is the state minus the best state, angles as the signed shortest way round.  Every
+controller action is the problem's action nearest to the continuous command (ties to the
+lowest index): the quantisation a real actuator set imposes.  The reported exemplar index
+of a controller step is -1.
+
+``ctl`` (float64) layout: [mode, c, swing-up kind, NG swing-up constants, K (D), P (D*D)].
+The swing-up pumps energy towards the upright energy E_top with the sign of the power the
+actuator can feed (sign(0) = +1, so a pendulum at rest gets a first push).
+Swing-up constants, acrobot (Spong-style energy pumping with a PD on the elbow):
+[M11 const, M11 cos-coef, M12 const, M12 cos-coef, M22, g-coef 1, g-coef 2, E_top, kp, kd,
+ke]; cart (Astrom-Furuta on the summed pole energy, plus cart centring):
+[m1 l1, m2 l2, J1, J2, g, E_top, ke, kx, kv, x index of the poles' first angle].
+"""
+import math
+
+import numpy as np
+from sim_nodes.jit import kernel
+
+from sapga_ros.exemplars.selectors import select
+
+NONE, CATCH, CLASSICAL = 0, 1, 2
+NO_SWING, SWING_ACROBOT, SWING_CART = 0, 1, 2
+MODE, C, SWING, GAINS = 0, 1, 2, 3
+NG = 12                       # swing-up constants
+HEAD = GAINS + NG             # K starts here
+
+
+@kernel(inline='always')
+def signed_angle(d):
+    """d wrapped to (-pi, pi]."""
+    d = d % (2.0 * math.pi)          # [0, 2pi)
+    return d - 2.0 * math.pi if d > math.pi else d
+
+
+@kernel(inline='always')
+def sgn(v):
+    """The sign, +1 at 0: a pendulum at rest gets a first push."""
+    return -1.0 if v < 0.0 else 1.0
+
+
+@kernel(inline='always')
+def nearest_action(u, actions):
+    best = 0
+    for a in range(1, actions.shape[0]):
+        if abs(actions[a] - u) < abs(actions[best] - u):
+            best = a
+    return actions[best]
+
+
+@kernel
+def lqr(ctl, s, best, is_angle, x):
+    """(inside x'Px <= c, continuous LQR command -Kx); x (D,) is scratch."""
+    dim = s.shape[0]
+    for i in range(dim):
+        d = s[i] - best[i]
+        x[i] = signed_angle(d) if is_angle[i] else d
+    quad = 0.0
+    base = HEAD + dim
+    for i in range(dim):
+        row = 0.0
+        for j in range(dim):
+            row += ctl[base + i * dim + j] * x[j]
+        quad += x[i] * row
+    u = 0.0
+    for i in range(dim):
+        u -= ctl[HEAD + i] * x[i]
+    return quad <= ctl[C], u
+
+
+@kernel
+def swing_up(ctl, s):
+    """The energy-based swing-up's continuous command."""
+    g = ctl[GAINS:GAINS + NG]
+    if ctl[SWING] == SWING_ACROBOT:
+        t1, t2, w1, w2 = s[0], s[1], s[2], s[3]
+        c2 = math.cos(t2)
+        m11 = g[0] + g[1] * c2
+        m12 = g[2] + g[3] * c2
+        m22 = g[4]
+        kinetic = 0.5 * (m11 * w1 * w1 + 2.0 * m12 * w1 * w2 + m22 * w2 * w2)
+        energy = kinetic + g[5] * math.sin(t1) + g[6] * math.sin(t1 + t2)
+        q2 = signed_angle(t2)
+        return -g[8] * q2 - g[9] * w2 + g[10] * (g[7] - energy) * sgn(w2)
+    if ctl[SWING] == SWING_CART:
+        i = int(g[9])
+        x, v = s[0], s[1]
+        t1, t2, w1, w2 = s[i], s[i + 1], s[i + 2], s[i + 3]
+        energy = (0.5 * g[2] * w1 * w1 + g[0] * g[4] * math.sin(t1)
+                  + 0.5 * g[3] * w2 * w2 + g[1] * g[4] * math.sin(t2))
+        pump = g[0] * math.sin(t1) * w1 + g[1] * math.sin(t2) * w2  # dE/dt per unit accel.
+        return g[6] * (g[5] - energy) * sgn(pump) - g[7] * x - g[8] * v
+    return 0.0
+
+
+@kernel
+def choose(style, model, s, ex, ex2, act, val, n, actions, p, inv_range, is_angle, radius2,
+           goal_u, progress, used, u, acc, w_state, w_act, w_rew, ctl, best, x):
+    """(exemplar index, action value, new progress): ``select`` behind the controller
+    ``ctl`` (see the module docstring; x (D,) is scratch)."""
+    if ctl[MODE] != NONE:
+        inside, command = lqr(ctl, s, best, is_angle, x)
+        if inside:
+            return -1, nearest_action(command, actions), progress
+        if ctl[MODE] == CLASSICAL:
+            return -1, nearest_action(swing_up(ctl, s), actions), progress
+    return select(style, model, s, ex, ex2, act, val, n, actions, p, inv_range, is_angle,
+                  radius2, goal_u, progress, used, u, acc, w_state, w_act, w_rew)
+
+
+def no_control(count: int = 1) -> np.ndarray:
+    """``ctl`` rows of policies without a controller."""
+    return np.zeros((count, 1))
