@@ -61,8 +61,18 @@ def test_two_namespaced_sims_with_one_clock_keep_sim_time_monotonic(ros):
     ros.wait_for(lambda: listener.count() > 40 and b.total_steps > a.total_steps + 10,
                  '/clock from /a while /b runs ahead')
     assert listener.backwards == 0
+    assert not clock_publisher(b) and clock_publisher(a)      # false: no /clock publisher
     assert b.set_parameters([Parameter('publish_clock', value=True)])[0].successful
     ros.wait_for(lambda: listener.backwards > 0, 'two clocks interleaving')
+    assert clock_publisher(b)
+    assert b.set_parameters([Parameter('publish_clock', value=False)])[0].successful
+    ros.wait_for(lambda: not clock_publisher(b), "/b's /clock publisher gone")
+
+
+def clock_publisher(sim: SimNode) -> bool:
+    """``sim`` has a /clock publisher on the ROS graph."""
+    topics = sim.get_publisher_names_and_types_by_node(sim.get_name(), sim.get_namespace())
+    return any(name == '/clock' for name, _ in topics)
 
 
 def test_sensor_data_qos_runs_a_realtime_loop(ros, tmp_path):

@@ -124,14 +124,10 @@ class PolicyNode(Node):
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
         if policy_file:
-            try:
-                if policy_file_size(policy_file) <= SYNC_BYTES:
-                    self._install(PreparedPolicy.of(load_policy(policy_file, p), policy_file))
-                    self._file_in_use = policy_file
-                else:
-                    self._load_file(policy_file)
-            except SapgaError as exc:
-                self.get_logger().error(f'no policy loaded: {exc}')
+            # At start-up nothing waits for an answer: load at once, whatever the size, and a
+            # file that cannot be used is a user error (PolicyFileError: one line, exit 2).
+            self._install(PreparedPolicy.of(load_policy(policy_file, p), policy_file))
+            self._file_in_use = policy_file
         self.get_logger().info(f'{p.name} policy node; load_policy fetches from {service!r}')
 
     # selection ------------------------------------------------------------------------------

@@ -80,7 +80,7 @@ class SimNode(Node):
         self._reward_pub = self.create_publisher(Float64, topics['reward'], qos, **quiet)
         self._marker_pub = self.create_publisher(MarkerArray, topics['markers'], qos, **quiet)
         self._event_pub = self.create_publisher(String, topics['event'], EVENT_QOS, **quiet)
-        self._clock_pub = self.create_publisher(Clock, '/clock', CLOCK_QOS, **quiet)
+        self._clock_pub = None         # only while publish_clock is true (_configure_clock)
         self._command_sub = self.create_subscription(Float64, topics['command'],
                                                      self._on_command, qos)
         self._stamped_sub = self.create_subscription(JointState, topics['command_stamped'],
@@ -112,6 +112,7 @@ class SimNode(Node):
 
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
+        self._configure_clock()
         self._configure_timers()
         self._gate = RecorderGate(self, self._start_episode)  # the first episode
         s = self.settings
@@ -136,6 +137,18 @@ class SimNode(Node):
             self._configure_timers()
         if self.settings.mode != old.mode:
             self.get_logger().info(f'mode {self.settings.mode}')
+        if self.settings.publish_clock != old.publish_clock:
+            self._configure_clock()
+
+    def _configure_clock(self) -> None:
+        """A /clock publisher exactly while ``publish_clock`` is true (a simulator that does
+        not publish the clock is no /clock publisher on the graph)."""
+        if self.settings.publish_clock and self._clock_pub is None:
+            self._clock_pub = self.create_publisher(Clock, '/clock', CLOCK_QOS,
+                                                    event_callbacks=QUIET_PUBLISHER)
+        elif not self.settings.publish_clock and self._clock_pub is not None:
+            self.destroy_publisher(self._clock_pub)
+            self._clock_pub = None
 
     def _configure_timers(self) -> None:
         for timer in (self._step_timer, self._republish_timer):
@@ -271,7 +284,7 @@ class SimNode(Node):
         self._marker_msg = self._markers.state(self._s, ns, s.delta) if s.markers else None
         if self._marker_msg is not None:
             self._marker_pub.publish(self._marker_msg)
-        if s.publish_clock:
+        if self._clock_pub is not None:
             self._clock_msg.clock = self._state_msg.header.stamp
             self._clock_pub.publish(self._clock_msg)
 
