@@ -234,7 +234,7 @@ def test_a_raising_callback_of_any_kind_is_one_line_and_the_node_goes_on(
         probe.state_pub.publish(layout.to_msg(acrobot.initial_state, 0.0, 77))
         wait(lambda: 77 in probe.answered, 'an answer')
     else:
-        answer = wait(lambda: _call(probe, 'recorder/ready'), 'the ready service')
+        answer = wait(lambda: _call(probe, 'recorder_node/ready'), 'the ready service')
         assert answer.message
     assert guarded.thread.is_alive()
 

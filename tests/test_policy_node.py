@@ -48,10 +48,10 @@ class FakeTrainer(Node):
     """A get_policy Trigger server answering with queued (success, message) pairs in turn."""
 
     def __init__(self, answers: list[tuple[bool, str]], **kwargs) -> None:
-        super().__init__('fake_trainer', **kwargs)
+        super().__init__('trainer_node', **kwargs)
         self.answers = list(answers)
         self.calls = 0
-        self.service = self.create_service(Trigger, 'get_policy', self._on_get_policy)
+        self.service = self.create_service(Trigger, '~/get_policy', self._on_get_policy)
 
     def _on_get_policy(self, request: Trigger.Request, response: Trigger.Response
                        ) -> Trigger.Response:

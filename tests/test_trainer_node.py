@@ -42,9 +42,9 @@ class Client(Node):
 
     def __init__(self, **kwargs) -> None:
         super().__init__('trainer_client', **kwargs)
-        self.get_policy = self.create_client(Trigger, 'get_policy')
-        self.train = self.create_client(Trigger, 'train')
-        self.stop = self.create_client(Trigger, 'stop')
+        self.get_policy = self.create_client(Trigger, 'trainer_node/get_policy')
+        self.train = self.create_client(Trigger, 'trainer_node/train')
+        self.stop = self.create_client(Trigger, 'trainer_node/stop')
         self.lock = threading.Lock()
         self.diagnostics: list[dict[str, str]] = []
         self.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics, 100)

@@ -115,7 +115,7 @@ class PolicyNode(Node):
         # executor thread run them while the coroutine waits.
         self._load_group = ReentrantCallbackGroup()
         self._client = self.create_client(Trigger, service, callback_group=self._load_group)
-        self._load_srv = self.create_service(Trigger, 'load_policy', self._on_load_policy,
+        self._load_srv = self.create_service(Trigger, '~/load_policy', self._on_load_policy,
                                              callback_group=self._load_group)
         self._command = StampedCommand(p)
         self._index_msg = Int32()

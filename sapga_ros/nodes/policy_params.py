@@ -5,9 +5,10 @@ and ``policy_node --help`` (``sim_nodes/ros/params.py``).
 name              type      default       meaning
 ================  ========  ============  ================================================
 problem           string    acrobot       msg_configs/<problem>.yaml (read-only)
-policy_file       string    ''            a policy JSON file (SPEC 3.3), loaded at start;
-                                          setting it loads that file or is refused
-trainer_service   string    get_policy    the trainer's std_srvs/Trigger (read-only)
+policy_file       string    ''            a policy JSON file, loaded at start (a bad one:
+                                          exit 2); setting it loads that file or is refused
+trainer_service   string    trainer_node/ the trainer's std_srvs/Trigger (read-only)
+                            get_policy
 load_timeout      double    5.0           [s] wait for the trainer's answer at most
 markers           bool      true          publish the exemplar ghost on ``markers``
 qos_profile       string    reliable      ``reliable`` (the problem's ``ros.qos``) |
@@ -25,10 +26,10 @@ from sim_nodes.ros.params import Param, Row, check
 
 PARAMETERS = (
     Param('problem', 'acrobot', 'msg_configs/<problem>.yaml', read_only=True),
-    Param('policy_file', '', 'policy JSON file (SPEC 3.3) loaded at start; setting it loads '
-          "that file ('' = none)"),
-    Param('trainer_service', 'get_policy', "the trainer's std_srvs/Trigger that load_policy "
-          'calls', read_only=True),
+    Param('policy_file', '', 'policy JSON file loaded at start (a bad one: exit 2); setting '
+          "it loads that file ('' = none)"),
+    Param('trainer_service', 'trainer_node/get_policy', "the trainer's std_srvs/Trigger that "
+          'load_policy calls', read_only=True),
     Param('load_timeout', 5.0, '[s] how long load_policy waits for the trainer', 1e-3,
           86400.0),
     Param('markers', True, 'publish the exemplar in use as a ghost on markers'),

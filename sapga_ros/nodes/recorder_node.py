@@ -8,9 +8,9 @@ directory ``<output_dir>/<bag>/`` of ``metadata.yaml`` and MCAP storage files, a
 MCAP storage plugin writes them, so ``ros2 bag info/play``, Foxglove, rosbags and
 ``sapga inspect`` read it.
 
-Service ``~/ready`` (``std_srvs/Trigger``): success once every recorded topic has a publisher
-(the hand-use ``command`` topic may have none) and each of its publishers is matched;
-``message`` names what is missing.  A simulator with
+Node ``recorder_node``; service ``recorder_node/ready`` (``std_srvs/Trigger``): success once
+every recorded topic has a publisher (the hand-use ``command`` topic may have none) and each
+of its publishers is matched; ``message`` names what is missing.  A simulator with
 ``wait_for_recorder`` (and ``sapga launch``) starts the run only then, so nothing is lost.
 
 Parameters (all read-only; ``recorder_params.py`` declares them, ``recorder_node --help``
@@ -77,6 +77,7 @@ from sim_nodes.ros.common import THROTTLE_S, run_node, topic_names
 from sim_nodes.ros.dropped import DropCounter
 from sim_nodes.ros.params import declare
 
+NODE_NAME = 'recorder_node'  # its readiness service: recorder_node/ready
 GRAPH_PERIOD_S = 1.0        # [s] between looks at the graph (new publishers, their QoS)
 
 
@@ -93,7 +94,7 @@ class RecorderNode(Node):
     """Raw subscriptions -> ``RecordingSession`` (one bag, split per run or per episode)."""
 
     def __init__(self, **kwargs: Any) -> None:
-        super().__init__('recorder', **kwargs)
+        super().__init__(NODE_NAME, **kwargs)
         p = declare(self, PARAMETERS)
         self._problem = load_problem(p['problem'])
         self._roles = {role: self._resolve(name)

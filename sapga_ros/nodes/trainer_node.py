@@ -111,9 +111,9 @@ class TrainerNode(Node):
                                                 f'({exc})')
 
         self._diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
-        self._get_srv = self.create_service(Trigger, 'get_policy', self._on_get_policy)
-        self._train_srv = self.create_service(Trigger, 'train', self._on_train)
-        self._stop_srv = self.create_service(Trigger, 'stop', self._on_stop)
+        self._get_srv = self.create_service(Trigger, '~/get_policy', self._on_get_policy)
+        self._train_srv = self.create_service(Trigger, '~/train', self._on_train)
+        self._stop_srv = self.create_service(Trigger, '~/stop', self._on_stop)
         # the training thread wakes the executor to publish a state change at once
         self._wake = self.create_guard_condition(self._publish_diagnostics)
         self._diag_timer = self.create_timer(self.get_parameter('diagnostics_period').value,

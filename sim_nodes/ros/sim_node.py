@@ -88,7 +88,7 @@ class SimNode(Node):
         self.dropped = {sub.topic_name: DropCounter(self.get_logger(), sub.topic_name,
                                                     sub.get_publisher_count, qos.depth)
                         for sub in (self._command_sub, self._stamped_sub)}
-        self._reset_srv = self.create_service(Trigger, 'reset', self._on_reset)
+        self._reset_srv = self.create_service(Trigger, '~/reset', self._on_reset)
         self._step_timer = None
         self._republish_timer = None
 
