@@ -40,14 +40,18 @@ from __future__ import annotations
 
 import math
 import sys
+import threading
 from dataclasses import dataclass
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.exceptions import ParameterException
+from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.qos import QoSProfile
 from std_srvs.srv import Trigger
 
 from sapga_ros.errors import ConfigError, SapgaError
@@ -61,6 +65,8 @@ from sim_nodes.problem import Problem, load_problem
 
 JOIN_TIMEOUT_S = 120.0  # [s] shutdown waits this long for the run to stop and save
 STOP_WAIT_S = 60.0      # [s] the stop service waits this long for the round to end
+SERVICE_QOS = QoSProfile(depth=1000)    # requests queued at most (reliable, volatile)
+SERVICE_THREADS = 4     # executor threads: stops that wait for the round leave the others
 QL_NOT_SERVABLE = ('method ql learns a Q-table (sapga-qtable/1), not an exemplar policy: the '
                    'policy node cannot run it (evaluate the out file with `sapga eval`; '
                    'train with method sapga to deploy)')
@@ -95,6 +101,7 @@ class TrainerNode(Node):
                 raise ConfigError(f'{self.get_name()}: parameter {reason}')
 
         self._run: TrainingRun | None = None
+        self._start_lock = threading.Lock()
         self._closing = False
         self._served = Served(None, '', 'no policy yet: no training run has found one (call '
                                         'train, or set train_on_start or policy_file)')
@@ -111,9 +118,14 @@ class TrainerNode(Node):
                                                 f'({exc})')
 
         self._diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
-        self._get_srv = self.create_service(Trigger, '~/get_policy', self._on_get_policy)
-        self._train_srv = self.create_service(Trigger, '~/train', self._on_train)
-        self._stop_srv = self.create_service(Trigger, '~/stop', self._on_stop)
+        # A stop waits for the round to end; with the executable's multi-threaded executor
+        # and a reentrant group the other requests are answered meanwhile, and a deep
+        # request queue keeps a burst of them until they are (none goes unanswered).
+        services = {'qos_profile': SERVICE_QOS, 'callback_group': ReentrantCallbackGroup()}
+        self._get_srv = self.create_service(Trigger, '~/get_policy', self._on_get_policy,
+                                            **services)
+        self._train_srv = self.create_service(Trigger, '~/train', self._on_train, **services)
+        self._stop_srv = self.create_service(Trigger, '~/stop', self._on_stop, **services)
         # the training thread wakes the executor to publish a state change at once
         self._wake = self.create_guard_condition(self._publish_diagnostics)
         self._diag_timer = self.create_timer(self.get_parameter('diagnostics_period').value,
@@ -186,6 +198,10 @@ class TrainerNode(Node):
 
     def _on_stop(self, request: Trigger.Request, response: Trigger.Response
                  ) -> Trigger.Response:
+        with self._start_lock:      # no run starts before this one's stop is answered
+            return self._stop(response)
+
+    def _stop(self, response: Trigger.Response) -> Trigger.Response:
         if not self.training:
             st = self.status()
             response.success = False
@@ -212,7 +228,12 @@ class TrainerNode(Node):
         return self._run.history if self._run is not None else []
 
     def start_training(self) -> tuple[bool, str]:
-        """Start a run with the current parameters; (started, message)."""
+        """Start a run with the current parameters; (started, message).  Two requests at
+        once (the services run on several threads) start one run."""
+        with self._start_lock:
+            return self._start_training()
+
+    def _start_training(self) -> tuple[bool, str]:
         if self.training:
             st = self.status()
             return False, (f'already training ({st["method"]}, {st["steps"]} of '
@@ -308,7 +329,8 @@ class TrainerNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """``ros2 run sapga_ros trainer_node``."""
-    return run_node(lambda: TrainerNode(), args)
+    return run_node(lambda: TrainerNode(), args,
+                    executor=lambda: MultiThreadedExecutor(num_threads=SERVICE_THREADS))
 
 
 if __name__ == '__main__':
