@@ -249,7 +249,7 @@ def test_a_raising_callback_of_any_kind_is_one_line_and_the_node_goes_on(
     answers its ready service)."""
     acrobot = load_problem('acrobot')
     if kind == 'sim':
-        node = guarded.add(SimNode, {'real_time_factor': 20.0})
+        node = guarded.add(SimNode, {'real_time_factor': 20.0, 'wait_for_policy': False})
     elif kind == 'policy':
         rng = np.random.default_rng(2)
         ExemplarPolicy(acrobot, rng.uniform(acrobot.low, acrobot.high, (20, 4)),

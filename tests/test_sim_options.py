@@ -53,8 +53,10 @@ def test_two_namespaced_sims_with_one_clock_keep_sim_time_monotonic(ros):
     """/a runs 1x, /b 4x faster with publish_clock false: a /clock subscriber never sees time
     go backwards.  Let /b publish too and it does: the parameter is what keeps it sane."""
     listener = ros.start(ClockListener)
-    a = ros.start(SimNode, params={'real_time_factor': 1.0}, namespace='/a')
-    b = ros.start(SimNode, params={'real_time_factor': 4.0, 'publish_clock': False},
+    a = ros.start(SimNode, params={'real_time_factor': 1.0, 'wait_for_policy': False},
+                  namespace='/a')
+    b = ros.start(SimNode, params={'real_time_factor': 4.0, 'publish_clock': False,
+                                   'wait_for_policy': False},
                   namespace='/b')
     assert a._state_pub.topic_name == '/a/joint_states'
     assert b._state_pub.topic_name == '/b/joint_states'

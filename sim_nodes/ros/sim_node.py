@@ -1,4 +1,4 @@
-"""Simulator node: one problem model behind the ROS 2 topic contract (SPEC 4).
+"""Simulator node: one problem model behind the ROS 2 topic contract.
 
 ``SimNode`` wraps the same compiled ``mdp_step`` and ``goal_delta`` the batch evaluator
 uses, so a lockstep episode is bit-identical to ``Evaluator.episode`` (docs/ros_interface.md).
@@ -12,11 +12,22 @@ stamps are distinct and monotonic.
 In lockstep the command answering an episode's final state starts the next episode (with
 auto_reset) instead of stepping, so each state gets exactly one command; a stamped command
 steps only the state it answers.
+
+Start: the first episode waits for the recorder named by ``wait_for_recorder``
+(``recorder_gate.py``).  In realtime (``wait_for_policy``) its first state is then
+re-published until a command answers it (a policy node is matched both ways: nothing else
+proves it), or the node stops after ``policy_timeout`` with one line saying what the graph
+shows; only then is the step timer made.  The step, goal test and drawing are compiled (or
+loaded from the cache) in the constructor, so the first tick comes one period after that
+answer, and a tick that comes late puts the next one a whole period off (``CATCH_UP``): no
+stall, and no ticks fired back to back to catch up.  In realtime a state that no command
+answered before the next tick counts as late (``late_commands``).
 """
 from __future__ import annotations
 
 import json
 import math
+import time
 from types import SimpleNamespace
 from typing import Any, Callable
 
@@ -36,7 +47,8 @@ from sim_nodes.models.registry import GENERIC_SIM, sim_executable
 from sim_nodes.problem import load_problem
 from sim_nodes.ros.commands import CommandCheck, StampedCommand
 from sim_nodes.ros.common import (CLOCK_QOS, EVENT_QOS, QUIET_PUBLISHER, JointStateLayout,
-                                  MessageError, run_node, steady_clock, topic_names, topic_qos)
+                                  MessageError, NodeExit, run_node, steady_clock, topic_names,
+                                  topic_qos)
 from sim_nodes.ros.dropped import DropCounter
 from sim_nodes.ros.markers import PendulumMarkers
 from sim_nodes.ros.params import declare
@@ -44,6 +56,10 @@ from sim_nodes.ros.recorder_gate import RecorderGate
 from sim_nodes.ros.sim_settings import (MODES, SimSettings, check_setting,  # noqa: F401
                                         declare_settings, help_rows, read_settings,
                                         sim_parameters)
+
+
+ANSWER_POLL_S = 0.1  # [s] realtime start: re-publish the first state this often until answered
+CATCH_UP = 0.6     # realtime: a next tick due sooner than this many periods is put off
 
 
 def _json_number(x: float) -> float | None:
@@ -105,6 +121,7 @@ class SimNode(Node):
         self._delta_star = math.inf
         self._effort = 0.0             # applied in the step that produced the state
         self._command = 0.0            # realtime: held command
+        self._answered = False         # realtime: the current state has its command
         self._late_before = 0          # late commands before this episode
         self._running = False          # an episode is in progress
         self._restart_pending = False  # the next tick starts a new episode
@@ -113,8 +130,10 @@ class SimNode(Node):
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
         self._configure_clock()
-        self._configure_timers()
-        self._gate = RecorderGate(self, self._start_episode)  # the first episode
+        self._warm_up()
+        self._answer_timer = None
+        self._waiting_since = 0.0
+        self._gate = RecorderGate(self, self._first_episode)  # the first episode
         s = self.settings
         self.get_logger().info(
             f'{problem.name} sim: mode {s.mode}, delta {s.delta}, n_step {s.n_step}, '
@@ -157,6 +176,8 @@ class SimNode(Node):
         self._step_timer = self._republish_timer = None
         s = self.settings
         period = self._tick_ns * 1e-9 / s.real_time_factor
+        if self._answer_timer is not None:
+            return                      # realtime start: the first answer makes them
         if s.mode == 'realtime':
             self._step_timer = self.create_timer(period, self._on_step_timer,
                                                  clock=steady_clock())
@@ -179,6 +200,7 @@ class SimNode(Node):
         if self.settings.mode == 'lockstep':
             self._advance(value)
         else:
+            self._answered = True       # no stamp: the answer to the current state
             self._command = value
 
     def _on_stamped_command(self, msg: JointState, info: dict) -> None:
@@ -195,16 +217,22 @@ class SimNode(Node):
         current = self._tick * self._tick_ns
         if self.settings.mode == 'lockstep':
             if answered != current:
-                self.commands.count_late(answered, current, applied=False)
+                self.commands.count_late(answered, current)
                 return
             self._advance(value)
         else:
-            if answered < current:
-                self.commands.count_late(answered, current, applied=True)
+            # one answering an older state is applied all the same (the freshest the policy
+            # said); that state was counted unanswered when its tick passed
+            self._answered = self._answered or answered == current
             self._command = value
 
     def _on_step_timer(self) -> None:
+        if self._running and not self._answered:
+            self.commands.count_unanswered(self._tick * self._tick_ns)
         self._advance(self._command)
+        timer = self._step_timer
+        if timer is not None and timer.time_until_next_call() < CATCH_UP * timer.timer_period_ns:
+            timer.reset()   # this tick came late: the next one a whole period from now
 
     def _on_republish(self) -> None:
         if self._tick >= 0:             # a state was published (the recorder gate is open)
@@ -220,6 +248,58 @@ class SimNode(Node):
         response.success = True
         response.message = f'episode {self._episode} started'
         return response
+
+    # the start ------------------------------------------------------------------------------
+
+    def _warm_up(self) -> None:
+        """Run the step, the goal test and the drawing once on scratch data, so that their
+        compilation (or cache load) happens now, not in the first ticks of a run."""
+        s = self._s0.copy()
+        self._mdp_step(s, 0.0, self._p)
+        goal_delta(s, self._best, self._inv_scale, self._fixed, self._is_angle)
+        self._markers.state(s, 0, self.settings.delta)
+        self._layout.fill(self._layout.new_msg(), s, 0.0, 0)
+
+    def _first_episode(self) -> None:
+        """The recorder is ready: start the first episode.  Realtime ticks count from the
+        policy's first answer (``wait_for_policy``; the start state is re-published until
+        then) or from now: no stall, no catch-up."""
+        self._start_episode()
+        if self.settings.mode == 'realtime' and self.get_parameter('wait_for_policy').value:
+            self._waiting_since = time.monotonic()
+            self._answer_timer = self.create_timer(ANSWER_POLL_S, self._await_answer,
+                                                   clock=steady_clock())
+            self.get_logger().info('waiting for a command answering the first state')
+        else:
+            self._configure_timers()
+
+    def _await_answer(self) -> None:
+        if self._answered:
+            self.destroy_timer(self._answer_timer)
+            self._answer_timer = None
+            self._configure_timers()
+            self.get_logger().info('the first state is answered: the run starts')
+            return
+        timeout = self.get_parameter('policy_timeout').value
+        if time.monotonic() - self._waiting_since > timeout:
+            self.destroy_timer(self._answer_timer)
+            raise NodeExit(f'{self.get_name()}: no command answered the first state within '
+                           f'{timeout:g} s ({self._policy_missing()}); start a policy node '
+                           'in this domain and namespace, or set wait_for_policy:=false')
+        self._state_pub.publish(self._state_msg)      # for a policy node matched since
+
+    def _policy_missing(self) -> str:
+        """What the graph says of the policy node (for the timeout's error line)."""
+        state, command = self._state_pub.topic_name, self._stamped_sub.topic_name
+        readers = {n for n, _ in self._graph(self.get_subscriptions_info_by_topic(state))}
+        writers = {n for n, _ in self._graph(self.get_publishers_info_by_topic(command))}
+        if not readers & writers:
+            return f'no node subscribes to {state} and publishes {command}'
+        return f'{", ".join(sorted(readers & writers))} on the graph but silent'
+
+    @staticmethod
+    def _graph(endpoints: list) -> set[tuple[str, str]]:
+        return {(e.node_name, e.node_namespace) for e in endpoints}
 
     # the episode ----------------------------------------------------------------------------
 
@@ -278,6 +358,7 @@ class SimNode(Node):
     def _publish_state(self) -> None:
         """Publish the state (its markers and /clock) at the current tick."""
         ns = self._tick * self._tick_ns
+        self._answered = False
         self._layout.fill(self._state_msg, self._s, self._effort, ns)
         self._state_pub.publish(self._state_msg)
         s = self.settings
