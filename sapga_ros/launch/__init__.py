@@ -1,4 +1,4 @@
-"""Launch scripts in plain Python (SPEC 4, Launch): no ``ros2 launch`` needed.
+"""Launch scripts in plain Python: no ``ros2 launch`` needed.
 
 ``run_launch(name, argv)`` runs one of ``LAUNCHES`` (``sapga launch NAME args...``):
 

@@ -92,7 +92,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog='sapga launch swingup',
                                 description='Run a policy file on the simulator and record '
                                             'the episodes to MCAP.')
-    p.add_argument('--policy', required=True, metavar='FILE', help='policy file (SPEC 3.3)')
+    p.add_argument('--policy', required=True, metavar='FILE', help='policy file')
     p.add_argument('--out', required=True, metavar='DIR', help='directory of the recording')
     p.add_argument('--mode', choices=MODES, default='lockstep',
                    help='lockstep (default; equals sapga eval) or realtime')

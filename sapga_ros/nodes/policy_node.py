@@ -1,4 +1,4 @@
-"""Policy node: an exemplar policy of any style behind the topic contract (SPEC 4).
+"""Policy node: an exemplar policy of any style behind the topic contract.
 
 Subscribes to the state (``sensor_msgs/JointState``), selects the action with the policy's
 style through the same compiled selector and packing as ``Evaluator``

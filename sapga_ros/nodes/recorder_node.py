@@ -1,4 +1,4 @@
-"""Recorder node (SPEC 4): subscribes to a problem's topics and writes one rosbag2 bag.
+"""Recorder node: subscribes to a problem's topics and writes one rosbag2 bag.
 
 A thin shell around ``sapga_ros.recording``: every subscription is raw (the CDR bytes as they
 arrived) with the publishers' QoS, durability included (``recorder_qos.py``), and each message

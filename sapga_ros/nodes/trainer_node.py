@@ -1,4 +1,4 @@
-"""Trainer node: SAP-GA (or the Q-learning baseline) offline, served over ROS 2 (SPEC 4).
+"""Trainer node: SAP-GA (or the Q-learning baseline) offline, served over ROS 2.
 
 Training runs in a background thread through the one training loop (``training.loop.train``,
 with the fast batch evaluator), never over ROS topics; the node reports progress on
@@ -18,7 +18,7 @@ otherwise).  A change applies to the next run.
 
 Services (std_srvs/Trigger):
 
-* ``get_policy``: ``message`` = the JSON document (SPEC 3.3) of the most recent of: the
+* ``get_policy``: ``message`` = the JSON document of the most recent of: the
   ``policy_file``, the best policy of the current or last SAP-GA run.  ``success`` false with
   the reason when there is none, and once a Q-learning run has started (a Q-table is no
   exemplar policy: the policy node cannot run it; ``sapga eval`` runs its ``out`` file).

@@ -1,4 +1,4 @@
-"""The trainer node's parameters, generated from the config dataclasses (SPEC 4).
+"""The trainer node's parameters, generated from the config dataclasses.
 
 Every ``setting`` field (``sapga_ros.optim.settings``) of ``TrainConfig``, ``SapgaParams``,
 ``QlParams`` and ``NodeSettings`` is a parameter of the same name, default and description,

@@ -1,4 +1,4 @@
-"""The trainer node's run status and its ``/diagnostics`` message (SPEC 4).
+"""The trainer node's run status and its ``/diagnostics`` message.
 
 ``RunStatus`` is the one place the training thread and the executor share: a dict of the
 values ``/diagnostics`` reports, read and written under a lock.  ``diagnostics`` turns a

@@ -1,4 +1,4 @@
-"""SAP-GA: exemplar-based policy search with a genetic algorithm (paper section 3; SPEC 3.2).
+"""SAP-GA: exemplar-based policy search with a genetic algorithm (paper section 3).
 
 The optimizer speaks ask/tell (``sapga_ros.optim.base``, as pycma and evosax do): ``ask()``
 pairs the population at random into families, makes N_child children per family by uniform
@@ -55,7 +55,7 @@ class SapgaParams:
     max_tries: int = 100                   # crossover attempts before a child is repaired
     style: str = setting('state-action', 'exemplar style of the policies evolved: ' + '; '.join(
         f'{s.name}: {s.summary}' for s in STYLES.values()), choices=tuple(STYLES))
-    variant: str = setting('paper', 'SAP-GA variant (issue 8; paper is the published '
+    variant: str = setting('paper', 'SAP-GA variant (paper is the published '
                            'algorithm): ' + '; '.join(f'{k}: {v}' for k, v in VARIANTS.items()),
                            choices=tuple(VARIANTS))
 
@@ -74,7 +74,7 @@ class Stats:
     best_value: float = -math.inf          # best evaluated value so far
     delta_star: float = math.inf           # min delta(s) over every state reached so far
     evaluations: int = 0
-    repairs: int = 0                       # children repaired after max_tries (SPEC 3.2)
+    repairs: int = 0                       # children repaired after max_tries
     refreshed: int = 0                     # exemplars re-drawn by the refresh operator
 
 

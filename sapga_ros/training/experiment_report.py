@@ -1,4 +1,4 @@
-"""Summaries of an experiment's runs (SPEC 3.5): curves against steps averaged over seeds,
+"""Summaries of an experiment's runs: curves against steps averaged over seeds,
 the final measures, a Markdown table and the figures drawn like the paper's Figures 3 and 4.
 """
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The Q-learning baseline's training run (SPEC 3.4): the one training loop
+"""The Q-learning baseline's training run: the one training loop
 (``sapga_ros.training.loop.train``) with ``method`` 'ql'."""
 from __future__ import annotations
 

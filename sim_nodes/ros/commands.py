@@ -1,4 +1,4 @@
-"""Commands that answer states (SPEC 4): the stamped command message and the checks the
+"""Commands that answer states: the stamped command message and the checks the
 simulator applies to every command.
 
 Two command inputs of the simulator (docs/ros_interface.md):
