@@ -52,6 +52,7 @@ from sim_nodes.problem import Problem, load_problem
 from sim_nodes.ros.commands import StampedCommand
 from sim_nodes.ros.common import (QUIET_PUBLISHER, THROTTLE_S, JointStateLayout, MessageError,
                                   run_node, stamp_ns, topic_names, topic_qos)
+from sim_nodes.ros.diagnostics import OK, WARN, NodeDiagnostics, Report
 from sim_nodes.ros.dropped import DropCounter
 from sim_nodes.ros.markers import PendulumMarkers
 from sim_nodes.ros.params import declare
@@ -123,6 +124,7 @@ class PolicyNode(Node):
 
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
+        self.diagnostics = NodeDiagnostics(self, 'policy', p.name, self._report)
         if policy_file:
             # At start-up nothing waits for an answer: load at once, whatever the size, and a
             # file that cannot be used is a user error (PolicyFileError: one line, exit 2).
@@ -171,6 +173,19 @@ class PolicyNode(Node):
             ghost = self._ghosts.exemplar(prepared.policy.states[j] if j >= 0 else None, stamp)
             if ghost is not None:
                 self._marker_pub.publish(ghost)
+
+    def _report(self) -> Report:
+        """The node's /diagnostics: the policy in use and the node's counters."""
+        prepared = self.active
+        values = {'policy': prepared.source if prepared is not None else 'none',
+                  'exemplars': len(prepared) if prepared is not None else 0,
+                  'style': prepared.policy.style if prepared is not None else '',
+                  'loading': self.loading or '', 'answered': self.answered,
+                  'unanswered': self.unanswered, 'rejected': self.rejected,
+                  'dropped': self.dropped.count}
+        if prepared is None:
+            return WARN, 'no policy loaded: states are not answered', values
+        return OK, f'{len(prepared)} exemplars from {prepared.source}'[:300], values
 
     # policies -------------------------------------------------------------------------------
 

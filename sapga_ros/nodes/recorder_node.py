@@ -74,6 +74,7 @@ from sapga_ros.recording.schemas import (full_type_name, message_definition, pub
 from sapga_ros.recording.session import RecordingSession, free_bag_path, utc_stamp
 from sim_nodes.problem import load_problem
 from sim_nodes.ros.common import THROTTLE_S, run_node, topic_names
+from sim_nodes.ros.diagnostics import ERROR, OK, WARN, NodeDiagnostics, Report
 from sim_nodes.ros.dropped import DropCounter
 from sim_nodes.ros.params import declare
 
@@ -126,6 +127,7 @@ class RecorderNode(Node):
         if p['flush_period'] > 0:
             self._flusher = self.create_timer(p['flush_period'], self._session.flush)
         self._ready_srv = self.create_service(Trigger, '~/ready', self._on_ready)
+        self.diagnostics = NodeDiagnostics(self, 'recorder', self._problem.name, self._report)
         self.get_logger().info(f'recording {", ".join(wanted)} to {self._session.path} '
                                f'(split per {p["split"]})')
 
@@ -235,6 +237,21 @@ class RecorderNode(Node):
         response.message = (f'recording {len(self._subs)} topics to {self._session.path}'
                             if not lacks else 'waiting for ' + '; '.join(lacks))
         return response
+
+    def _report(self) -> Report:
+        """The node's /diagnostics: the bag, what it holds, what it lacks."""
+        lacks = self.missing()
+        dropped = sum(d.count for d in self.dropped.values())
+        if self.write_errors:
+            level, message = ERROR, f'{self.write_errors} messages could not be written'
+        elif lacks:
+            level, message = WARN, 'waiting for ' + '; '.join(lacks)
+        else:
+            level, message = OK, f'recording {len(self._subs)} topics'
+        return level, message[:300], {
+            'bag': str(self._session.path), 'messages': self.message_count,
+            'topics': len(self._subs), 'dropped': dropped, 'write_errors': self.write_errors,
+            'ready': not lacks}
 
     # messages ---------------------------------------------------------------------------
 

@@ -49,6 +49,7 @@ from sim_nodes.ros.commands import CommandCheck, StampedCommand
 from sim_nodes.ros.common import (CLOCK_QOS, EVENT_QOS, QUIET_PUBLISHER, JointStateLayout,
                                   MessageError, NodeExit, run_node, steady_clock, topic_names,
                                   topic_qos)
+from sim_nodes.ros.diagnostics import OK, WARN, NodeDiagnostics, Report
 from sim_nodes.ros.dropped import DropCounter
 from sim_nodes.ros.markers import PendulumMarkers
 from sim_nodes.ros.params import declare
@@ -133,6 +134,7 @@ class SimNode(Node):
         self._warm_up()
         self._answer_timer = None
         self._waiting_since = 0.0
+        self.diagnostics = NodeDiagnostics(self, 'simulator', problem.name, self._report)
         self._gate = RecorderGate(self, self._first_episode)  # the first episode
         s = self.settings
         self.get_logger().info(
@@ -300,6 +302,24 @@ class SimNode(Node):
     @staticmethod
     def _graph(endpoints: list) -> set[tuple[str, str]]:
         return {(e.node_name, e.node_namespace) for e in endpoints}
+
+    def _report(self) -> Report:
+        """The node's /diagnostics: what it is doing, its counters."""
+        s, c = self.settings, self.commands
+        if not self._gate.open:
+            level, message = WARN, f'waiting for recorder {self._gate.recorder!r}'
+        elif self._answer_timer is not None:
+            level, message = WARN, 'waiting for a command answering the first state'
+        else:
+            what = 'running' if self._running else 'between episodes'
+            level, message = OK, f'{s.mode}: episode {self._episode} {what}, step {self._step}'
+        dropped = sum(d.count for d in self.dropped.values())
+        return level, message, {
+            'mode': s.mode, 'episode': self._episode, 'step': self._step,
+            'total_steps': self.total_steps, 'sim_time': self._tick * self._tick_ns / 1e9,
+            'delta': float(s.delta), 'real_time_factor': float(s.real_time_factor),
+            'late_commands': c.late, 'ignored_commands': c.ignored,
+            'clamped_commands': c.clamped, 'dropped_commands': dropped}
 
     # the episode ----------------------------------------------------------------------------
 
