@@ -128,6 +128,8 @@ data_files = [
                      ('*.yaml', '*.yml', '*.json')),
     # the nodes' parameter files also where ROS users look: share/sapga_ros/params/<exe>.yaml
     *tree_data_files(os.path.join('msg_configs', 'params'), 'share/' + PACKAGE + '/params'),
+    # `ros2 launch sapga_ros <name>.launch.py` (the plain-Python launches: `sapga launch`)
+    *tree_data_files('launch', 'share/' + PACKAGE + '/launch', ('*.launch.py',)),
 ]
 
 setup(
