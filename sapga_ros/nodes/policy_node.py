@@ -15,7 +15,9 @@ Parameters (``policy_params.py``; ``policy_node --help`` prints them with their 
 ``problem``, ``policy_file``, ``trainer_service``, ``load_timeout``, ``markers``,
 ``qos_profile``.
 
-Service ``load_policy`` (std_srvs/Trigger) fetches the policy from ``trainer_service``.  A
+A ``policy_file`` given at start is loaded at once, whatever its size; one that cannot be used
+stops the node with one line naming the file (exit 2).  Service ``~/load_policy``
+(``/policy_node/load_policy``, std_srvs/Trigger) fetches the policy from ``trainer_service``.  A
 policy that fails validation is refused with the reason and the old one is kept; a good one
 replaces the old one atomically (one reference assignment of an immutable
 ``PreparedPolicy``).  Parsing and packing happen in a worker thread (``policy_loader.py``), so

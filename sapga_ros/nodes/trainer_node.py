@@ -16,7 +16,10 @@ generated from the config dataclasses by ``sapga_ros.nodes.trainer_params`` -- t
 ``out`` and the checkpoint directory must be in existing folders (a run is refused
 otherwise).  A change applies to the next run.
 
-Services (std_srvs/Trigger):
+Services (std_srvs/Trigger, the node's own: ``/trainer_node/get_policy``, ...).  They run on
+a multi-threaded executor in a reentrant group with a deep request queue, so a burst of
+requests is answered in full: a ``stop`` waiting for its round holds no other request, and
+``train`` and ``stop`` are serialised (one run at a time; a stop answers about its run):
 
 * ``get_policy``: ``message`` = the JSON document of the most recent of: the
   ``policy_file``, the best policy of the current or last SAP-GA run.  ``success`` false with

@@ -4,7 +4,8 @@
 uses, so a lockstep episode is bit-identical to ``Evaluator.episode`` (docs/ros_interface.md).
 Its parameters are ``sim_settings.py``'s (validated on every change; ``problem`` and
 ``qos_profile`` are read-only); commands are checked as ``commands.py`` says, markers drawn
-as ``markers.py`` says.
+as ``markers.py`` says.  Service ``~/reset`` (``/<node>/reset``, std_srvs/Trigger) starts a
+new episode; ``/diagnostics`` reports the node's state and counters once a second.
 
 Time: every published new state is one tick (``dt * substeps``, 0.05 s for the pendulums)
 of sim time later than the previous one (an MDP step, or the start of an episode), so
