@@ -16,19 +16,22 @@ steps only the state it answers.
 
 Start: the first episode waits for the recorder named by ``wait_for_recorder``
 (``recorder_gate.py``).  In realtime (``wait_for_policy``) its first state is then
-re-published until a command answers it (a policy node is matched both ways: nothing else
-proves it), or the node stops after ``policy_timeout`` with one line saying what the graph
-shows; only then is the step timer made.  The step, goal test and drawing are compiled (or
+re-published until a command answers it (``answer_wait.py``), or the node stops after
+``policy_timeout`` with one line saying what the graph shows; only then is the step timer
+made.  The step, goal test and drawing are compiled (or
 loaded from the cache) in the constructor, so the first tick comes one period after that
 answer, and a tick that comes late puts the next one a whole period off (``CATCH_UP``): no
 stall, and no ticks fired back to back to catch up.  In realtime a state that no command
 answered before the next tick counts as late (``late_commands``).
+
+The file is about 400 lines: one node's episode loop with its ROS wiring; what stands alone
+is split out (``commands``, ``markers``, ``dropped``, ``recorder_gate``, ``answer_wait``,
+``diagnostics``).
 """
 from __future__ import annotations
 
 import json
 import math
-import time
 from types import SimpleNamespace
 from typing import Any, Callable
 
@@ -46,10 +49,10 @@ from sim_nodes.goal import goal_arrays, goal_delta
 from sim_nodes.models import MODELS, model_module
 from sim_nodes.models.registry import GENERIC_SIM, sim_executable
 from sim_nodes.problem import load_problem
+from sim_nodes.ros.answer_wait import AnswerWait
 from sim_nodes.ros.commands import CommandCheck, StampedCommand
 from sim_nodes.ros.common import (CLOCK_QOS, EVENT_QOS, QUIET_PUBLISHER, JointStateLayout,
-                                  MessageError, NodeExit, run_node, steady_clock, topic_names,
-                                  topic_qos)
+                                  MessageError, run_node, steady_clock, topic_names, topic_qos)
 from sim_nodes.ros.diagnostics import OK, WARN, NodeDiagnostics, Report
 from sim_nodes.ros.dropped import DropCounter
 from sim_nodes.ros.markers import PendulumMarkers
@@ -60,7 +63,6 @@ from sim_nodes.ros.sim_settings import (MODES, SimSettings, check_setting,  # no
                                         sim_parameters)
 
 
-ANSWER_POLL_S = 0.1  # [s] realtime start: re-publish the first state this often until answered
 CATCH_UP = 0.6     # realtime: a next tick due sooner than this many periods is put off
 
 
@@ -133,8 +135,7 @@ class SimNode(Node):
         self.add_post_set_parameters_callback(self._apply_parameters)
         self._configure_clock()
         self._warm_up()
-        self._answer_timer = None
-        self._waiting_since = 0.0
+        self._wait: AnswerWait | None = None    # realtime start (answer_wait.py)
         self.diagnostics = NodeDiagnostics(self, 'simulator', problem.name, self._report)
         self._gate = RecorderGate(self, self._first_episode)  # the first episode
         s = self.settings
@@ -179,7 +180,7 @@ class SimNode(Node):
         self._step_timer = self._republish_timer = None
         s = self.settings
         period = self._tick_ns * 1e-9 / s.real_time_factor
-        if self._answer_timer is not None:
+        if self._wait is not None:
             return                      # realtime start: the first answer makes them
         if s.mode == 'realtime':
             self._step_timer = self.create_timer(period, self._on_step_timer,
@@ -265,51 +266,27 @@ class SimNode(Node):
 
     def _first_episode(self) -> None:
         """The recorder is ready: start the first episode.  Realtime ticks count from the
-        policy's first answer (``wait_for_policy``; the start state is re-published until
-        then) or from now: no stall, no catch-up."""
+        policy's first answer (``wait_for_policy``: ``answer_wait.py``) or from now."""
         self._start_episode()
         if self.settings.mode == 'realtime' and self.get_parameter('wait_for_policy').value:
-            self._waiting_since = time.monotonic()
-            self._answer_timer = self.create_timer(ANSWER_POLL_S, self._await_answer,
-                                                   clock=steady_clock())
-            self.get_logger().info('waiting for a command answering the first state')
+            self._wait = AnswerWait(
+                self, lambda: self._answered, lambda: self._state_pub.publish(self._state_msg),
+                self._answered_first, (self._state_pub.topic_name,
+                                       self._stamped_sub.topic_name),
+                self.get_parameter('policy_timeout').value)
         else:
             self._configure_timers()
 
-    def _await_answer(self) -> None:
-        if self._answered:
-            self.destroy_timer(self._answer_timer)
-            self._answer_timer = None
-            self._configure_timers()
-            self.get_logger().info('the first state is answered: the run starts')
-            return
-        timeout = self.get_parameter('policy_timeout').value
-        if time.monotonic() - self._waiting_since > timeout:
-            self.destroy_timer(self._answer_timer)
-            raise NodeExit(f'{self.get_name()}: no command answered the first state within '
-                           f'{timeout:g} s ({self._policy_missing()}); start a policy node '
-                           'in this domain and namespace, or set wait_for_policy:=false')
-        self._state_pub.publish(self._state_msg)      # for a policy node matched since
-
-    def _policy_missing(self) -> str:
-        """What the graph says of the policy node (for the timeout's error line)."""
-        state, command = self._state_pub.topic_name, self._stamped_sub.topic_name
-        readers = {n for n, _ in self._graph(self.get_subscriptions_info_by_topic(state))}
-        writers = {n for n, _ in self._graph(self.get_publishers_info_by_topic(command))}
-        if not readers & writers:
-            return f'no node subscribes to {state} and publishes {command}'
-        return f'{", ".join(sorted(readers & writers))} on the graph but silent'
-
-    @staticmethod
-    def _graph(endpoints: list) -> set[tuple[str, str]]:
-        return {(e.node_name, e.node_namespace) for e in endpoints}
+    def _answered_first(self) -> None:
+        self._wait = None
+        self._configure_timers()
 
     def _report(self) -> Report:
         """The node's /diagnostics: what it is doing, its counters."""
         s, c = self.settings, self.commands
         if not self._gate.open:
             level, message = WARN, f'waiting for recorder {self._gate.recorder!r}'
-        elif self._answer_timer is not None:
+        elif self._wait is not None:
             level, message = WARN, 'waiting for a command answering the first state'
         else:
             what = 'running' if self._running else 'between episodes'
