@@ -123,11 +123,13 @@ if _editable_wheel is not None:
 data_files = [
     ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
     ('share/' + PACKAGE, ['package.xml']),
-    # problems, node parameters, experiments, the Foxglove layout (foxglove/sapga_ros.json)
+    # problems, node parameters, experiments, the Foxglove layouts (foxglove/<problem>.json)
     *tree_data_files('msg_configs', 'share/' + PACKAGE + '/msg_configs',
                      ('*.yaml', '*.yml', '*.json')),
     # the nodes' parameter files also where ROS users look: share/sapga_ros/params/<exe>.yaml
     *tree_data_files(os.path.join('msg_configs', 'params'), 'share/' + PACKAGE + '/params'),
+    # `ros2 launch sapga_ros <name>.launch.py` (the plain-Python launches: `sapga launch`)
+    *tree_data_files('launch', 'share/' + PACKAGE + '/launch', ('*.launch.py',)),
 ]
 
 setup(

@@ -1,4 +1,4 @@
-"""What a state looks like: the pendulums as points and line segments (SPEC 4, Visualization).
+"""What a state looks like: the pendulums as points and line segments.
 
 Pure Python (no ROS, no plotting): the simulator's and the policy node's markers
 (``sim_nodes/ros/markers.py``) and the stroboscopic plot of ``sapga inspect --plot``

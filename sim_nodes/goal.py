@@ -1,4 +1,4 @@
-"""Goal area S_delta and delta(s) (SPEC 2), shared by every model.
+"""Goal area S_delta and delta(s), shared by every model.
 
 ``delta(s)`` is the smallest delta with s in S_delta: the largest of the scaled deviations
 |s_i - best_i| / scale_i (circular on angles), or infinity when a coordinate with a fixed

@@ -1,6 +1,6 @@
 """Problem configuration: msg_configs/<name>.yaml parsed into a frozen ``Problem``.
 
-One YAML file per problem is the single source of truth (SPEC 1): state layout, ROS
+One YAML file per problem is the single source of truth: state layout, ROS
 interface, physical parameters, action set, bounds, goal area and episode settings.  YAML
 is read with ``yaml.safe_load``; numbers may be written as multiples of pi ('3pi/2') and are
 parsed by a regular expression, never evaluated.  The checks beyond parsing (the ``ros:``

@@ -210,7 +210,8 @@ class Probe(Node):
     ``command_pub`` publishes hand-use ``Float64`` commands, ``answer`` stamped ones.
     """
 
-    def __init__(self, problem: Problem, node_name: str = 'probe', **kwargs: Any) -> None:
+    def __init__(self, problem: Problem, node_name: str = 'probe', sim: str = 'sim',
+                 **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
         topics = topic_names(problem)
         self.states: dict[int, JointState] = {}
@@ -233,8 +234,8 @@ class Probe(Node):
         self.stamped_pub = self.create_publisher(JointState, topics['command_stamped'],
                                                  PROBE_QOS)
         self.state_pub = self.create_publisher(JointState, topics['state'], PROBE_QOS)
-        self.reset = self.create_client(Trigger, 'reset')
-        self.load_policy = self.create_client(Trigger, 'load_policy')
+        self.reset = self.create_client(Trigger, f'{sim}/reset')
+        self.load_policy = self.create_client(Trigger, 'policy_node/load_policy')
 
     def _on_state(self, msg: JointState) -> None:
         with self.lock:

@@ -1,7 +1,8 @@
-"""Commands answer states (sim_nodes/ros/commands.py, SPEC 4) over real Fast DDS: a lockstep
+"""Commands answer states (sim_nodes/ros/commands.py) over real Fast DDS: a lockstep
 simulator steps only on the stamped command for its current state, so a reset with a command
-in flight never steps the new episode with it; a realtime simulator applies the latest command
-and counts the late ones; malformed stamped commands are ignored and the node goes on."""
+in flight never steps the new episode with it; a realtime simulator applies the latest
+command and counts the states no command answered in time; malformed stamped commands are
+ignored and the node goes on."""
 from __future__ import annotations
 
 import array
@@ -143,9 +144,10 @@ def test_resets_during_a_running_policy_never_mix_episodes(ros, tmp_path, acrobo
     assert sim.commands.ignored == 0
 
 
-def test_realtime_applies_the_latest_command_and_counts_late_ones(ros, acrobot):
-    """Realtime holds the latest command, late or not; one answering an older state than the
-    current one is counted (node and the episode's events)."""
+def test_realtime_applies_the_latest_command_and_counts_unanswered_states(ros, acrobot):
+    """Realtime holds the latest command, even one answering a long-gone state; every state
+    that no command answered before the next tick is late: with nobody answering, all of an
+    episode's states (node and the episode's end event)."""
     layout = JointStateLayout(acrobot)
     probe = ros.start(Probe, problem=acrobot)
     sim = ros.start(SimNode, params={'mode': 'lockstep', 'n_step': 60})
@@ -154,18 +156,36 @@ def test_realtime_applies_the_latest_command_and_counts_late_ones(ros, acrobot):
                                Parameter('mode', value='realtime')])[0].successful
     ros.wait_for(lambda: len(probe.states) > 5, 'realtime steps')
     probe.answer(-2.0, 0)                     # answers the first state: long gone
-    ros.wait_for(lambda: sim.commands.late == 1, 'the late command counted')
-    episode = sim._episode                    # the episode it arrived in
     held = ros.wait_for(lambda: next((t for t, m in list(probe.states.items())
                                       if m.effort[layout.actuator] == -2.0), None),
                         'a step with the late command')
     current = max(probe.states)
-    probe.answer(2.0, current + 100 * TICK_NS)   # not older than the current state: not late
+    probe.answer(2.0, current + 100 * TICK_NS)   # a future state's answer: held all the same
     ros.wait_for(lambda: any(m.effort[layout.actuator] == 2.0 for t, m in
                              list(probe.states.items()) if t > held), 'the next command held')
-    assert sim.commands.late == 1
+    episode = sim._episode + 1                # a whole episode that nobody answers
     end = ros.wait_for(lambda: probe.end_of(episode), f'the end of episode {episode}')
-    assert end['late_commands'] == 1
+    assert end['step'] == 60 and end['late_commands'] == 60      # every state it stepped from
+
+
+def test_realtime_late_commands_count_exactly_the_unanswered_states(ros, acrobot, tmp_path):
+    """With a policy node answering, an episode's late_commands is at least the number of its
+    states the policy never answered (a probe hears every answer) and at most its steps."""
+    ExemplarPolicy(acrobot, acrobot.initial_state[None, :], [2]).save(tmp_path / 'p.json')
+    probe = ros.start(Probe, problem=acrobot)
+    ros.start(PolicyNode, params={'policy_file': str(tmp_path / 'p.json')})
+    sim = ros.start(SimNode, params={'real_time_factor': 2.0, 'n_step': 40,
+                                     'max_episodes': 2})
+    end = ros.wait_for(lambda: probe.end_of(2), 'two episodes')
+    start = probe.event('start', 2)
+    with probe.lock:
+        stamps = [t for t in probe.states if start['time'] * 1e9 - 1 <= t
+                  < end['time'] * 1e9 - 1]
+        answered = set(probe.answered)
+    never = [t for t in stamps if t not in answered]
+    assert len(stamps) == end['step'] == 40
+    assert len(never) <= end['late_commands'] <= end['step']
+    assert sim.commands.late >= end['late_commands']
 
 
 @pytest.mark.parametrize('name', ['acrobot', 'pdip'])

@@ -174,28 +174,3 @@ def test_no_exemplar_deletes_the_ghost():
     assert shown.action == Marker.ADD and len(shown.points) == 4
     gone = markers.exemplar(None, 8).markers[0]
     assert gone.action == Marker.DELETE and stamp_ns(gone) == 8 and gone.ns == 'exemplar'
-
-
-def test_the_foxglove_layout_shows_the_markers_and_plots_the_contract_topics():
-    """msg_configs/foxglove/sapga_ros.json: a Foxglove layout whose 3D panel shows the markers
-    topic and whose panels name only topics of the contract (common.DEFAULT_TOPICS)."""
-    import json
-    from pathlib import Path
-
-    from sim_nodes.ros.common import DEFAULT_TOPICS
-
-    path = Path(__file__).resolve().parents[1] / 'msg_configs' / 'foxglove' / 'sapga_ros.json'
-    layout = json.loads(path.read_text(encoding='utf-8'))
-    panels = layout['configById']
-
-    def leaves(node):
-        return [node] if isinstance(node, str) else leaves(node['first']) + leaves(
-            node['second'])
-
-    assert sorted(leaves(layout['layout'])) == sorted(panels)
-    (three_d,) = [p for name, p in panels.items() if name.startswith('3D!')]
-    assert three_d['topics'] == {f'/{DEFAULT_TOPICS["markers"]}': {'visible': True}}
-    topics = {f'/{t}' for t in DEFAULT_TOPICS.values()}
-    paths = [p['value'] for panel in panels.values() for p in panel.get('paths', [])]
-    paths += [panel['topicPath'] for panel in panels.values() if 'topicPath' in panel]
-    assert paths and all(p.split('.')[0] in topics for p in paths), paths

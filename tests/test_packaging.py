@@ -22,7 +22,7 @@ REPO = Path(__file__).resolve().parents[1]
 PACKAGE = 'sapga_ros'
 # what a source checkout of the package is; build outputs, .git and .venv stay behind
 PACKAGE_FILES = ('package.xml', 'setup.py', 'setup.cfg', 'resource', 'sapga_ros', 'sim_nodes',
-                 'msg_configs')
+                 'msg_configs', 'launch')
 IGNORED = shutil.ignore_patterns('__pycache__', '*.pyc', '*.egg-info', 'build', 'install',
                                  'log')
 TIMEOUT = 300  # [s] for one build or one `--help` on a loaded machine
@@ -208,6 +208,8 @@ def test_pip_install_puts_launchers_and_share_files_into_prefix(tmp_path):
     for rel in _config_files():
         assert (prefix / 'share' / PACKAGE / 'msg_configs' / rel).is_file(), str(rel)
     _assert_params_installed(prefix / 'share' / PACKAGE)
+    for launch_file in sorted((REPO / 'launch').glob('*.launch.py')):   # for ros2 launch
+        assert (prefix / 'share' / PACKAGE / 'launch' / launch_file.name).is_file()
 
     # the launcher runs this prefix's console script, which imports this prefix's package
     env = _env(PYTHONPATH=str(_site_packages(prefix)), AMENT_PREFIX_PATH=str(prefix))

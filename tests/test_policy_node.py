@@ -48,10 +48,10 @@ class FakeTrainer(Node):
     """A get_policy Trigger server answering with queued (success, message) pairs in turn."""
 
     def __init__(self, answers: list[tuple[bool, str]], **kwargs) -> None:
-        super().__init__('fake_trainer', **kwargs)
+        super().__init__('trainer_node', **kwargs)
         self.answers = list(answers)
         self.calls = 0
-        self.service = self.create_service(Trigger, 'get_policy', self._on_get_policy)
+        self.service = self.create_service(Trigger, '~/get_policy', self._on_get_policy)
 
     def _on_get_policy(self, request: Trigger.Request, response: Trigger.Response
                        ) -> Trigger.Response:
@@ -155,12 +155,20 @@ def test_bad_policy_files_are_refused_with_the_reason_and_the_old_policy_kept(
     assert pol.active.source == str(other)
 
 
-def test_a_bad_policy_file_at_start_leaves_the_node_running_without_a_policy(ros, tmp_path):
-    """A node started with a broken policy file keeps running, with no policy loaded."""
-    (tmp_path / 'broken.json').write_text('not json')
-    pol = ros.start(PolicyNode, params={'policy_file': str(tmp_path / 'broken.json')})
-    assert pol.active is None
-    assert not pol.set_parameters([Parameter('load_timeout', value=0.0)])[0].successful
+@pytest.mark.parametrize('content', ['not json', None])
+def test_a_bad_policy_file_at_start_is_one_line_and_exit_2(ros, tmp_path, content):
+    """policy_node started with a broken or missing policy file stops at once: one line
+    naming the file, exit status 2, no traceback (a node with no policy would answer
+    nothing)."""
+    path = tmp_path / 'broken.json'
+    if content is not None:
+        path.write_text(content)
+    proc = ros.spawn('policy_node', '--ros-args', '-p', f'policy_file:={path}')
+    proc.wait(120)
+    lines = [line for line in ros.children[-1][1].read_text().splitlines() if line.strip()]
+    assert proc.returncode == 2, lines
+    assert len(lines) == 1 and lines[0].startswith('policy_node: error: '), lines
+    assert str(path) in lines[0] and 'Traceback' not in lines[0]
 
 
 def test_load_policy_fetches_from_the_trainer_service_and_validates(ros, acrobot, tmp_path):

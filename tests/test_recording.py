@@ -97,7 +97,7 @@ class Publisher:
             self.spin_until(lambda p=self.pubs[role]: p.get_subscription_count() >= 1,
                             f'the recorder to subscribe to {role}')
 
-    def ready(self, service: str = '/recorder/ready') -> Trigger.Response:
+    def ready(self, service: str = '/recorder_node/ready') -> Trigger.Response:
         """The recorder's answer to its readiness service."""
         client = self.node.create_client(Trigger, service)
         try:

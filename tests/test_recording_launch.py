@@ -256,10 +256,10 @@ def test_a_sim_waiting_for_a_missing_recorder_stops_with_one_line(tmp_path):
     env = dict(os.environ, ROS_DOMAIN_ID=str(free_domain_id()),
                ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
     done = subprocess.run([str(executable('acrobot_sim')), '--ros-args', '-p',
-                           'mode:=lockstep', '-p', 'wait_for_recorder:=recorder', '-p',
+                           'mode:=lockstep', '-p', 'wait_for_recorder:=recorder_node', '-p',
                            'recorder_timeout:=2.0'], env=env, capture_output=True, text=True,
                           timeout=60)
     errors = [line for line in done.stderr.splitlines()
               if line.startswith('acrobot_sim: error: ')]
     assert done.returncode == 1 and 'Traceback' not in done.stderr, done.stderr
-    assert len(errors) == 1 and "recorder 'recorder' not ready after 2 s" in errors[0]
+    assert len(errors) == 1 and "recorder 'recorder_node' not ready after 2 s" in errors[0]

@@ -53,16 +53,28 @@ def test_two_namespaced_sims_with_one_clock_keep_sim_time_monotonic(ros):
     """/a runs 1x, /b 4x faster with publish_clock false: a /clock subscriber never sees time
     go backwards.  Let /b publish too and it does: the parameter is what keeps it sane."""
     listener = ros.start(ClockListener)
-    a = ros.start(SimNode, params={'real_time_factor': 1.0}, namespace='/a')
-    b = ros.start(SimNode, params={'real_time_factor': 4.0, 'publish_clock': False},
+    a = ros.start(SimNode, params={'real_time_factor': 1.0, 'wait_for_policy': False},
+                  namespace='/a')
+    b = ros.start(SimNode, params={'real_time_factor': 4.0, 'publish_clock': False,
+                                   'wait_for_policy': False},
                   namespace='/b')
     assert a._state_pub.topic_name == '/a/joint_states'
     assert b._state_pub.topic_name == '/b/joint_states'
     ros.wait_for(lambda: listener.count() > 40 and b.total_steps > a.total_steps + 10,
                  '/clock from /a while /b runs ahead')
     assert listener.backwards == 0
+    assert not clock_publisher(b) and clock_publisher(a)      # false: no /clock publisher
     assert b.set_parameters([Parameter('publish_clock', value=True)])[0].successful
     ros.wait_for(lambda: listener.backwards > 0, 'two clocks interleaving')
+    assert clock_publisher(b)
+    assert b.set_parameters([Parameter('publish_clock', value=False)])[0].successful
+    ros.wait_for(lambda: not clock_publisher(b), "/b's /clock publisher gone")
+
+
+def clock_publisher(sim: SimNode) -> bool:
+    """``sim`` has a /clock publisher on the ROS graph."""
+    topics = sim.get_publisher_names_and_types_by_node(sim.get_name(), sim.get_namespace())
+    return any(name == '/clock' for name, _ in topics)
 
 
 def test_sensor_data_qos_runs_a_realtime_loop(ros, tmp_path):

@@ -42,9 +42,9 @@ class Client(Node):
 
     def __init__(self, **kwargs) -> None:
         super().__init__('trainer_client', **kwargs)
-        self.get_policy = self.create_client(Trigger, 'get_policy')
-        self.train = self.create_client(Trigger, 'train')
-        self.stop = self.create_client(Trigger, 'stop')
+        self.get_policy = self.create_client(Trigger, 'trainer_node/get_policy')
+        self.train = self.create_client(Trigger, 'trainer_node/train')
+        self.stop = self.create_client(Trigger, 'trainer_node/stop')
         self.lock = threading.Lock()
         self.diagnostics: list[dict[str, str]] = []
         self.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics, 100)
@@ -310,3 +310,35 @@ def test_out_in_a_missing_folder_is_refused_before_training(ros, tmp_path):
     refused = ros.call(client.train, Trigger.Request())
     assert not refused.success and 'checkpoint' in refused.message
     assert not (tmp_path / 'no').exists() and not (tmp_path / 'a').exists()
+
+
+def test_sixty_mixed_train_and_stop_calls_are_all_answered(ros, tmp_path):
+    """train / stop / get_policy spam on the trainer executable (as another process calls
+    it): every request gets its answer, each consistent with what the node did, and the node
+    goes on running."""
+    from rclpy.qos import QoSProfile
+    deep = QoSProfile(depth=100)            # this client keeps every response it gets
+    proc = ros.spawn('trainer_node', '--ros-args', *[
+        a for k, v in {**SMALL, 'steps': 10**12, 'out': str(tmp_path / 'best.json')}.items()
+        for a in ('-p', f'{k}:={v}')])
+    node = ros.start(lambda **kw: Node('spammer', **kw))
+    clients = {name: node.create_client(Trigger, f'trainer_node/{name}', qos_profile=deep)
+               for name in ('train', 'stop', 'get_policy')}
+    for client in clients.values():
+        ros.wait_for(client.service_is_ready, f'service {client.srv_name}', timeout=120)
+    order = ['train', 'stop', 'train', 'get_policy', 'stop', 'stop', 'train', 'train'] * 8
+    calls = [(name, clients[name].call_async(Trigger.Request())) for name in order[:60]]
+    ros.wait_for(lambda: all(f.done() for _, f in calls),
+                 f'answers to all {len(calls)} calls', timeout=300)
+    for name, future in calls:
+        r = future.result()
+        if name == 'train':
+            assert r.success or 'already training' in r.message, r.message
+        elif name == 'stop':
+            assert (r.success and 'stopped' in r.message) or \
+                'no training run in progress' in r.message, r.message
+    assert any(f.result().success for name, f in calls if name == 'train')
+    assert proc.poll() is None
+    final = clients['stop'].call_async(Trigger.Request())
+    ros.wait_for(final.done, 'the last stop', timeout=120)
+    assert ros.stop(proc) == 0

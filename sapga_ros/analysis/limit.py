@@ -1,5 +1,5 @@
 """The physical limit of a problem: the smallest delta any action sequence reaches within
-N_step MDP steps from the initial state, searched open loop (issue 8, item 4).
+N_step MDP steps from the initial state, searched open loop.
 
 A *cell beam search* over action sequences: at each depth every state of the beam is
 expanded with every action (one batch of ``step_lanes``, the engine's own model step), the

@@ -1,4 +1,4 @@
-"""Benchmark of the ROS 2 shell (SPEC 4, SPEC 5 'Speed'): how fast a lockstep episode runs
+"""Benchmark of the ROS 2 shell: how fast a lockstep episode runs
 through DDS and what one selection costs in the policy node, each printed beside a baseline
 measured in the same process (the compiled offline episode kernel).
 

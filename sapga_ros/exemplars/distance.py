@@ -1,4 +1,4 @@
-"""Nearest-neighbour action selector of the state-action style (paper section 3, SPEC 3.1).
+"""Nearest-neighbour action selector of the state-action style (paper section 3).
 
 Distance: normalised Euclidean.  Each coordinate is divided by its range (2pi for angles,
 8pi / 18pi for the acrobot's velocities, 5 for x, 32 for v, 8pi for the PDIP's

@@ -1,4 +1,4 @@
-"""Exemplar policies and the public policy file format (SPEC 3.1, 3.3).
+"""Exemplar policies and the public policy file format.
 
 A policy is a set of exemplar records plus the action selector of its ``style``
 (``sapga_ros.exemplars.styles``).  In memory, one row per exemplar: ``states`` (L, D) raw
@@ -123,7 +123,7 @@ class ExemplarPolicy:
         return doc
 
     def to_document(self) -> dict[str, Any]:
-        """The JSON document of SPEC 3.3."""
+        """The JSON document of the policy file (format ``sapga-policy/1``)."""
         return {
             'format': FORMAT,
             'problem': self.problem.name,

@@ -1,9 +1,9 @@
-"""The action selectors of the five exemplar styles, as one compiled function (SPEC 3.1).
+"""The action selectors of the five exemplar styles, as one compiled function.
 
 ``select(style, ...)`` maps a state to an action for a policy packed as the evaluator packs
 it; the batch evaluator, the traced episode and the ROS policy node all call it, so a
 lockstep ROS episode equals an offline evaluation bit for bit.  Decided where the paper is
-silent (SPEC 3.1):
+silent:
 
 * **state-action**: the nearest exemplar's action.  Referred: that exemplar.
 * **via-point**: the via-points are visited in order.  Before selecting, every via-point

@@ -1,4 +1,4 @@
-"""The exemplar styles of the paper (section 2; SPEC 3.1): what an exemplar record holds.
+"""The exemplar styles of the paper (section 2): what an exemplar record holds.
 
 Every style's exemplar is a record with some of four fields, held by ``ExemplarPolicy`` as
 arrays with one row per exemplar:

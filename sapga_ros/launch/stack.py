@@ -15,6 +15,7 @@ from typing import Any
 from sapga_ros.errors import SapgaError
 from sapga_ros.launch.supervisor import LaunchError, Supervisor, find_executable, write_params_file
 from sapga_ros.launch.launch_node import LaunchRos
+from sapga_ros.nodes.recorder_node import NODE_NAME as RECORDER
 from sapga_ros.recording.reader import read_recording
 from sapga_ros.recording.session import free_bag_path, utc_stamp
 from sapga_ros.recording.verify import recording_gaps
@@ -72,7 +73,7 @@ class DeployStack:
         self.spawn('sim', sim_executable(o.problem.model), {
             'problem': o.problem.name, 'mode': 'lockstep', 'delta': float(o.delta),
             'auto_reset': True, 'max_episodes': o.episodes, 'republish_period': 0.0,
-            'real_time_factor': float(o.real_time_factor), 'wait_for_recorder': 'recorder',
+            'real_time_factor': float(o.real_time_factor), 'wait_for_recorder': RECORDER,
             'recorder_timeout': CONNECT_TIMEOUT_S})
 
     def spawn(self, name: str, exe: str, params: dict[str, Any]) -> None:
@@ -108,7 +109,7 @@ class DeployStack:
         said = ['no answer']
 
         def ready() -> bool:
-            answer = self.ros.trigger(self.sup, 'recorder/ready')
+            answer = self.ros.trigger(self.sup, f'{RECORDER}/ready')
             said[0] = answer.message
             return answer.success
 

@@ -102,11 +102,11 @@ def run_train_deploy(args: argparse.Namespace, sup: Supervisor) -> TrainDeployRe
 
             trainer = sup.wait(trained, timeout=TRAIN_TIMEOUT_S, what='the training run')
             sup.say(f'trainer: {trainer["message"]}')
-            served = ros.trigger(sup, 'get_policy')
+            served = ros.trigger(sup, 'trainer_node/get_policy')
             if not served.success:
                 raise LaunchError(f'trainer serves no policy: {served.message}')
             policy = policy_from_json(served.message, problem, 'get_policy')
-            loaded = ros.trigger(sup, 'load_policy')
+            loaded = ros.trigger(sup, 'policy_node/load_policy')
             if not loaded.success:
                 raise LaunchError(f'policy node did not load the policy: {loaded.message}')
             sup.say(f'policy node: {loaded.message}')

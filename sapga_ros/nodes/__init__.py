@@ -1,4 +1,4 @@
-"""ROS 2 nodes of sapga_ros (SPEC 4): thin rclpy shells around the core.
+"""ROS 2 nodes of sapga_ros: thin rclpy shells around the core.
 
 What every node shares lives in ``sim_nodes.ros``: ``common`` (QoS and topic names from
 msg_configs, the JointState <-> state-vector conversion), ``params`` (parameters declared

@@ -1,4 +1,4 @@
-"""Policy node: an exemplar policy of any style behind the topic contract (SPEC 4).
+"""Policy node: an exemplar policy of any style behind the topic contract.
 
 Subscribes to the state (``sensor_msgs/JointState``), selects the action with the policy's
 style through the same compiled selector and packing as ``Evaluator``
@@ -15,7 +15,9 @@ Parameters (``policy_params.py``; ``policy_node --help`` prints them with their 
 ``problem``, ``policy_file``, ``trainer_service``, ``load_timeout``, ``markers``,
 ``qos_profile``.
 
-Service ``load_policy`` (std_srvs/Trigger) fetches the policy from ``trainer_service``.  A
+A ``policy_file`` given at start is loaded at once, whatever its size; one that cannot be used
+stops the node with one line naming the file (exit 2).  Service ``~/load_policy``
+(``/policy_node/load_policy``, std_srvs/Trigger) fetches the policy from ``trainer_service``.  A
 policy that fails validation is refused with the reason and the old one is kept; a good one
 replaces the old one atomically (one reference assignment of an immutable
 ``PreparedPolicy``).  Parsing and packing happen in a worker thread (``policy_loader.py``), so
@@ -52,6 +54,7 @@ from sim_nodes.problem import Problem, load_problem
 from sim_nodes.ros.commands import StampedCommand
 from sim_nodes.ros.common import (QUIET_PUBLISHER, THROTTLE_S, JointStateLayout, MessageError,
                                   run_node, stamp_ns, topic_names, topic_qos)
+from sim_nodes.ros.diagnostics import OK, WARN, NodeDiagnostics, Report
 from sim_nodes.ros.dropped import DropCounter
 from sim_nodes.ros.markers import PendulumMarkers
 from sim_nodes.ros.params import declare
@@ -115,7 +118,7 @@ class PolicyNode(Node):
         # executor thread run them while the coroutine waits.
         self._load_group = ReentrantCallbackGroup()
         self._client = self.create_client(Trigger, service, callback_group=self._load_group)
-        self._load_srv = self.create_service(Trigger, 'load_policy', self._on_load_policy,
+        self._load_srv = self.create_service(Trigger, '~/load_policy', self._on_load_policy,
                                              callback_group=self._load_group)
         self._command = StampedCommand(p)
         self._index_msg = Int32()
@@ -123,15 +126,12 @@ class PolicyNode(Node):
 
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
+        self.diagnostics = NodeDiagnostics(self, 'policy', p.name, self._report)
         if policy_file:
-            try:
-                if policy_file_size(policy_file) <= SYNC_BYTES:
-                    self._install(PreparedPolicy.of(load_policy(policy_file, p), policy_file))
-                    self._file_in_use = policy_file
-                else:
-                    self._load_file(policy_file)
-            except SapgaError as exc:
-                self.get_logger().error(f'no policy loaded: {exc}')
+            # At start-up nothing waits for an answer: load at once, whatever the size, and a
+            # file that cannot be used is a user error (PolicyFileError: one line, exit 2).
+            self._install(PreparedPolicy.of(load_policy(policy_file, p), policy_file))
+            self._file_in_use = policy_file
         self.get_logger().info(f'{p.name} policy node; load_policy fetches from {service!r}')
 
     # selection ------------------------------------------------------------------------------
@@ -175,6 +175,19 @@ class PolicyNode(Node):
             ghost = self._ghosts.exemplar(prepared.policy.states[j] if j >= 0 else None, stamp)
             if ghost is not None:
                 self._marker_pub.publish(ghost)
+
+    def _report(self) -> Report:
+        """The node's /diagnostics: the policy in use and the node's counters."""
+        prepared = self.active
+        values = {'policy': prepared.source if prepared is not None else 'none',
+                  'exemplars': len(prepared) if prepared is not None else 0,
+                  'style': prepared.policy.style if prepared is not None else '',
+                  'loading': self.loading or '', 'answered': self.answered,
+                  'unanswered': self.unanswered, 'rejected': self.rejected,
+                  'dropped': self.dropped.count}
+        if prepared is None:
+            return WARN, 'no policy loaded: states are not answered', values
+        return OK, f'{len(prepared)} exemplars from {prepared.source}'[:300], values
 
     # policies -------------------------------------------------------------------------------
 

@@ -1,4 +1,4 @@
-"""Recorder node (SPEC 4): subscribes to a problem's topics and writes one rosbag2 bag.
+"""Recorder node: subscribes to a problem's topics and writes one rosbag2 bag.
 
 A thin shell around ``sapga_ros.recording``: every subscription is raw (the CDR bytes as they
 arrived) with the publishers' QoS, durability included (``recorder_qos.py``), and each message
@@ -8,9 +8,9 @@ directory ``<output_dir>/<bag>/`` of ``metadata.yaml`` and MCAP storage files, a
 MCAP storage plugin writes them, so ``ros2 bag info/play``, Foxglove, rosbags and
 ``sapga inspect`` read it.
 
-Service ``~/ready`` (``std_srvs/Trigger``): success once every recorded topic has a publisher
-(the hand-use ``command`` topic may have none) and each of its publishers is matched;
-``message`` names what is missing.  A simulator with
+Node ``recorder_node``; service ``recorder_node/ready`` (``std_srvs/Trigger``): success once
+every recorded topic has a publisher (the hand-use ``command`` topic may have none) and each
+of its publishers is matched; ``message`` names what is missing.  A simulator with
 ``wait_for_recorder`` (and ``sapga launch``) starts the run only then, so nothing is lost.
 
 Parameters (all read-only; ``recorder_params.py`` declares them, ``recorder_node --help``
@@ -75,9 +75,11 @@ from sapga_ros.recording.schemas import (full_type_name, message_definition, pub
 from sapga_ros.recording.session import RecordingSession, free_bag_path, utc_stamp
 from sim_nodes.problem import load_problem
 from sim_nodes.ros.common import THROTTLE_S, run_node, topic_names
+from sim_nodes.ros.diagnostics import ERROR, OK, WARN, NodeDiagnostics, Report
 from sim_nodes.ros.dropped import DropCounter
 from sim_nodes.ros.params import declare
 
+NODE_NAME = 'recorder_node'  # its readiness service: recorder_node/ready
 GRAPH_PERIOD_S = 1.0        # [s] between looks at the graph (new publishers, their QoS)
 
 
@@ -94,7 +96,7 @@ class RecorderNode(Node):
     """Raw subscriptions -> ``RecordingSession`` (one bag, split per run or per episode)."""
 
     def __init__(self, **kwargs: Any) -> None:
-        super().__init__('recorder', **kwargs)
+        super().__init__(NODE_NAME, **kwargs)
         p = declare(self, PARAMETERS[:1])
         self._problem = load_problem(p['problem'])
         p.update(declare(self, PARAMETERS[1:], self._problem))
@@ -126,6 +128,7 @@ class RecorderNode(Node):
         if p['flush_period'] > 0:
             self._flusher = self.create_timer(p['flush_period'], self._session.flush)
         self._ready_srv = self.create_service(Trigger, '~/ready', self._on_ready)
+        self.diagnostics = NodeDiagnostics(self, 'recorder', self._problem.name, self._report)
         self.get_logger().info(f'recording {", ".join(wanted)} to {self._session.path} '
                                f'(split per {p["split"]})')
 
@@ -235,6 +238,21 @@ class RecorderNode(Node):
         response.message = (f'recording {len(self._subs)} topics to {self._session.path}'
                             if not lacks else 'waiting for ' + '; '.join(lacks))
         return response
+
+    def _report(self) -> Report:
+        """The node's /diagnostics: the bag, what it holds, what it lacks."""
+        lacks = self.missing()
+        dropped = sum(d.count for d in self.dropped.values())
+        if self.write_errors:
+            level, message = ERROR, f'{self.write_errors} messages could not be written'
+        elif lacks:
+            level, message = WARN, 'waiting for ' + '; '.join(lacks)
+        else:
+            level, message = OK, f'recording {len(self._subs)} topics'
+        return level, message[:300], {
+            'bag': str(self._session.path), 'messages': self.message_count,
+            'topics': len(self._subs), 'dropped': dropped, 'write_errors': self.write_errors,
+            'ready': not lacks}
 
     # messages ---------------------------------------------------------------------------
 

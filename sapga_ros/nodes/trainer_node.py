@@ -1,4 +1,4 @@
-"""Trainer node: SAP-GA (or the Q-learning baseline) offline, served over ROS 2 (SPEC 4).
+"""Trainer node: SAP-GA (or the Q-learning baseline) offline, served over ROS 2.
 
 Training runs in a background thread through the one training loop (``training.loop.train``,
 with the fast batch evaluator), never over ROS topics; the node reports progress on
@@ -17,9 +17,12 @@ suffix>.ckpt`` beside ``out``, none without ``out``).
 ``out`` and the checkpoint directory must be in existing folders (a run is refused
 otherwise).  A change applies to the next run.
 
-Services (std_srvs/Trigger):
+Services (std_srvs/Trigger, the node's own: ``/trainer_node/get_policy``, ...).  They run on
+a multi-threaded executor in a reentrant group with a deep request queue, so a burst of
+requests is answered in full: a ``stop`` waiting for its round holds no other request, and
+``train`` and ``stop`` are serialised (one run at a time; a stop answers about its run):
 
-* ``get_policy``: ``message`` = the JSON document (SPEC 3.3) of the most recent of: the
+* ``get_policy``: ``message`` = the JSON document of the most recent of: the
   ``policy_file``, the best policy of the current or last SAP-GA run.  ``success`` false with
   the reason when there is none, and once a Q-learning run has started (a Q-table is no
   exemplar policy: the policy node cannot run it; ``sapga eval`` runs its ``out`` file).
@@ -41,13 +44,17 @@ from __future__ import annotations
 
 import math
 import sys
+import threading
 from dataclasses import dataclass
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import SetParametersResult
+from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.qos import QoSProfile
 from std_srvs.srv import Trigger
 
 from sapga_ros.errors import ConfigError, SapgaError
@@ -63,6 +70,8 @@ from sim_nodes.ros.params import declare
 
 JOIN_TIMEOUT_S = 120.0  # [s] shutdown waits this long for the run to stop and save
 STOP_WAIT_S = 60.0      # [s] the stop service waits this long for the round to end
+SERVICE_QOS = QoSProfile(depth=1000)    # requests queued at most (reliable, volatile)
+SERVICE_THREADS = 4     # executor threads: stops that wait for the round leave the others
 QL_NOT_SERVABLE = ('method ql learns a Q-table (sapga-qtable/1), not an exemplar policy: the '
                    'policy node cannot run it (evaluate the out file with `sapga eval`; '
                    'train with method sapga to deploy)')
@@ -90,6 +99,7 @@ class TrainerNode(Node):
             raise ConfigError(f'{self.get_name()}: {reason}')
 
         self._run: TrainingRun | None = None
+        self._start_lock = threading.Lock()
         self._closing = False
         self._served = Served(None, '', 'no policy yet: no training run has found one (call '
                                         'train, or set train_on_start or policy_file)')
@@ -107,9 +117,14 @@ class TrainerNode(Node):
                                                 f'({exc})')
 
         self._diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
-        self._get_srv = self.create_service(Trigger, 'get_policy', self._on_get_policy)
-        self._train_srv = self.create_service(Trigger, 'train', self._on_train)
-        self._stop_srv = self.create_service(Trigger, 'stop', self._on_stop)
+        # A stop waits for the round to end; with the executable's multi-threaded executor
+        # and a reentrant group the other requests are answered meanwhile, and a deep
+        # request queue keeps a burst of them until they are (none goes unanswered).
+        services = {'qos_profile': SERVICE_QOS, 'callback_group': ReentrantCallbackGroup()}
+        self._get_srv = self.create_service(Trigger, '~/get_policy', self._on_get_policy,
+                                            **services)
+        self._train_srv = self.create_service(Trigger, '~/train', self._on_train, **services)
+        self._stop_srv = self.create_service(Trigger, '~/stop', self._on_stop, **services)
         # the training thread wakes the executor to publish a state change at once
         self._wake = self.create_guard_condition(self._publish_diagnostics)
         self._diag_timer = self.create_timer(self.get_parameter('diagnostics_period').value,
@@ -182,6 +197,10 @@ class TrainerNode(Node):
 
     def _on_stop(self, request: Trigger.Request, response: Trigger.Response
                  ) -> Trigger.Response:
+        with self._start_lock:      # no run starts before this one's stop is answered
+            return self._stop(response)
+
+    def _stop(self, response: Trigger.Response) -> Trigger.Response:
         if not self.training:
             st = self.status()
             response.success = False
@@ -208,7 +227,12 @@ class TrainerNode(Node):
         return self._run.history if self._run is not None else []
 
     def start_training(self) -> tuple[bool, str]:
-        """Start a run with the current parameters; (started, message)."""
+        """Start a run with the current parameters; (started, message).  Two requests at
+        once (the services run on several threads) start one run."""
+        with self._start_lock:
+            return self._start_training()
+
+    def _start_training(self) -> tuple[bool, str]:
         if self.training:
             st = self.status()
             return False, (f'already training ({st["method"]}, {st["steps"]} of '
@@ -305,7 +329,8 @@ class TrainerNode(Node):
 def main(args: list[str] | None = None) -> int:
     """``ros2 run sapga_ros trainer_node``."""
     return run_node(lambda: TrainerNode(), args, parameters=lambda: PARAMETERS,
-                    name='trainer_node')
+                    name='trainer_node',
+                    executor=lambda: MultiThreadedExecutor(num_threads=SERVICE_THREADS))
 
 
 if __name__ == '__main__':

@@ -1,4 +1,4 @@
-"""One run of the trainer node: the training loop in a background thread (SPEC 4).
+"""One run of the trainer node: the training loop in a background thread.
 
 ``TrainingRun`` trains one ``TrainConfig`` through ``training.loop.train`` (the fast batch
 evaluator, never ROS topics), keeps the log rows, writes the best policy and its log to

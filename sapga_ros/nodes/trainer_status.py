@@ -1,4 +1,4 @@
-"""The trainer node's run status and its ``/diagnostics`` message (SPEC 4).
+"""The trainer node's run status and its ``/diagnostics`` message.
 
 ``RunStatus`` is the one place the training thread and the executor share: a dict of the
 values ``/diagnostics`` reports, read and written under a lock.  ``diagnostics`` turns a
@@ -14,7 +14,9 @@ import math
 import threading
 from typing import Any
 
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+
+from sim_nodes.ros.diagnostics import key_values
 
 STATES = ('idle', 'training', 'stopped', 'done', 'failed')
 
@@ -59,9 +61,7 @@ def diagnostics(name: str, hardware_id: str, st: dict[str, Any], served: str, ou
         'episodes': st['episodes'], 'method': st['method'], 'seed': st['seed'],
         'served': served or 'none', 'out': out, 'checkpoint': st['checkpoint'],
     }
-    status.values = [KeyValue(key=k, value=str(v).lower() if isinstance(v, bool)
-                              else repr(v) if isinstance(v, float) else str(v))
-                     for k, v in values.items()]
+    status.values = key_values(values)
     msg = DiagnosticArray()
     msg.status = [status]
     return msg

@@ -1,4 +1,4 @@
-"""SAP-GA operators (paper section 3; SPEC 3.2) as pure functions of an explicit generator.
+"""SAP-GA operators (paper section 3) as pure functions of an explicit generator.
 
 * ``random_exemplars``: records of any style: states uniform over the problem's bounds,
   actions uniform, values uniform over an episode's return range.
@@ -19,7 +19,7 @@ from sim_nodes.problem import Problem
 
 def random_exemplars(problem: Problem, count: int, rng: np.random.Generator,
                      style: str = 'state-action') -> ExemplarPolicy:
-    """``count`` random exemplar records of ``style`` (SPEC 3.1): states uniform over
+    """``count`` random exemplar records of ``style``: states uniform over
     [low, high), action indices uniform, values uniform over an episode's return range.
     Drawn field by field in the order state, state2, action, value."""
     spec = style_named(style)
@@ -72,7 +72,7 @@ def uniform_crossover(p1: ExemplarPolicy, p2: ExemplarPolicy, rng: np.random.Gen
                       l_min: int, l_max: int, rate: tuple[float, float] = (0.3, 0.7),
                       max_tries: int = 100, union: tuple | None = None
                       ) -> tuple[ExemplarPolicy, bool]:
-    """A child of p1 and p2 and whether it had to be repaired (SPEC 3.2).
+    """A child of p1 and p2 and whether it had to be repaired.
 
     Each attempt keeps the selected exemplars deduplicated in first-seen order (computed
     on record indices into the parents' union, so an attempt builds no policy until its

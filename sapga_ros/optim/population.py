@@ -1,4 +1,4 @@
-"""The members of a SAP-GA population and their checkpoint form (SPEC 3.2).
+"""The members of a SAP-GA population and their checkpoint form.
 
 ``pack`` lays a list of individuals out as flat arrays (exemplar records concatenated, one
 length per policy); ``unpack`` reads them back, refusing counts that do not add up,

@@ -1,4 +1,4 @@
-"""The Q-learning baseline (SPEC 3.4) behind the optimizer contract (``optim.base``).
+"""The Q-learning baseline behind the optimizer contract (``optim.base``).
 
 Q-learning evaluates its own candidates: each ``ask()`` runs the next chunk of whole
 epsilon-greedy episodes inside the compiled ``learn`` kernel (at most ``chunk_steps`` steps,
@@ -22,7 +22,7 @@ from sim_nodes.goal import alt_goal_arrays, goal_arrays
 from sim_nodes.models import model_id
 from sim_nodes.problem import Problem
 
-GAMMA = 1.0                                # discount (SPEC 3.4)
+GAMMA = 1.0                                # discount
 # The model kernels' lane loops vectorise in blocks of 8 columns (8 doubles: AVX-512 on
 # this machine).  Measured with step_lanes on the acrobot: 8 or 16 columns run 8-9 M
 # lane-steps/s, 10 or 12 only 3.4-4.5 M (the remainder runs scalar); spare columns cost less.

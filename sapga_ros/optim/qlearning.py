@@ -1,4 +1,4 @@
-"""Tabular Q-learning baseline (paper section 4.3; SPEC 3.4) on the same model kernels.
+"""Tabular Q-learning baseline (paper section 4.3) on the same model kernels.
 
 Square tiling: ``tiles_per_dim`` cells per coordinate over the problem's bounds, on the
 coordinates ``q_learning.state_indices`` of the YAML (the PDIP-single baseline tiles

@@ -1,4 +1,4 @@
-"""SAP-GA: exemplar-based policy search with a genetic algorithm (paper section 3; SPEC 3.2).
+"""SAP-GA: exemplar-based policy search with a genetic algorithm (paper section 3).
 
 The optimizer speaks ask/tell (``sapga_ros.optim.base``, as pycma and evosax do): ``ask()``
 pairs the population at random into families, makes N_child children per family by uniform
@@ -91,7 +91,7 @@ class Stats:
     best_value: float = -math.inf          # best evaluated value so far
     delta_star: float = math.inf           # min delta(s) over every state reached so far
     evaluations: int = 0
-    repairs: int = 0                       # children repaired after max_tries (SPEC 3.2)
+    repairs: int = 0                       # children repaired after max_tries
     refreshed: int = 0                     # exemplars re-drawn by the refresh operator
 
 

@@ -1,7 +1,7 @@
 """``sapga inspect``'s summary of a recording (a bag directory or one MCAP file).
 
 Reads with ``reader.py`` and the ``mcap_ros2`` decoder (no ROS graph) and reports the
-topics and message counts and, per episode (``episodes.py``), the return, delta* (SPEC 2),
+topics and message counts and, per episode (``episodes.py``), the return, delta*,
 steps to the goal (or that it was not reached) and how often each action was commanded.
 The numbers the simulator put in the end event (return, step, delta_star) are reported; the
 same quantities recomputed from the recorded rewards and states are reported beside them

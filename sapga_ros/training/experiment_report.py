@@ -1,4 +1,4 @@
-"""Summaries of an experiment's runs (SPEC 3.5): curves against steps averaged over seeds,
+"""Summaries of an experiment's runs: curves against steps averaged over seeds,
 the final measures and a Markdown table.  The figures drawn from them, like the paper's
 Figures 3 and 4, are in ``sapga_ros.viz.summary_plot``.
 """

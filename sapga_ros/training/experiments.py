@@ -1,4 +1,4 @@
-"""The experiment engine (SPEC 3.5): many seeds of each experiment of a set, run in worker
+"""The experiment engine: many seeds of each experiment of a set, run in worker
 processes, each run's result written to ``DIR/runs/`` the moment it finishes.
 
 Rerunning with the same ``DIR`` skips the runs already there (resume after a kill); a run

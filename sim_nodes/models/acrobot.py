@@ -1,4 +1,4 @@
-"""Acrobot dynamics kernel (SPEC 2.1; paper 4.1).
+"""Acrobot dynamics kernel (paper 4.1).
 
 Two uniform links hang from a fixed shoulder; the only motor is at the elbow.
 

@@ -1,4 +1,4 @@
-"""Mountain car dynamics kernel (SPEC 2.3; Sutton & Barto, section 10.1).
+"""Mountain car dynamics kernel (Sutton & Barto, section 10.1).
 
 =====  ======  ==================  ==========================================
 state  unit    bounds              meaning

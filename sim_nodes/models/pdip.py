@@ -1,4 +1,4 @@
-"""PDIP dynamics kernel: two parallel inverted pendulums on a cart (SPEC 2.2; paper 4.2).
+"""PDIP dynamics kernel: two parallel inverted pendulums on a cart (paper 4.2).
 
 ==============  ======  ========================  =========================================
 state           unit    bounds                    meaning

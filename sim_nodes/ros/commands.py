@@ -1,4 +1,4 @@
-"""Commands that answer states (SPEC 4): the stamped command message and the checks the
+"""Commands that answer states: the stamped command message and the checks the
 simulator applies to every command.
 
 Two command inputs of the simulator (docs/ros_interface.md):
@@ -8,12 +8,13 @@ Two command inputs of the simulator (docs/ros_interface.md):
   ``effort`` = [torque / force], ``frame_id`` = ``ros.frame_id``.  In lockstep only a command
   answering the current state steps; any other (the answer to a state before a reset, a
   duplicate) is ignored and counted as late, so no stale command steps a new episode or
-  starts one.  In realtime the latest command is held from the next tick on, and one that
-  answers a state older than the current one is counted as late (it is applied all the same:
-  it is the freshest the policy has said).
+  starts one.  In realtime the latest command is held from the next tick on, even one that
+  answers an older state (it is the freshest the policy has said); a state that no command
+  answered before the next tick is counted as late (``count_unanswered``).
 * ``command`` (``std_msgs/Float64``), for hand use (``ros2 topic pub``).  It carries no stamp:
   lockstep takes it as the answer to the current state, so a reset while one is in flight
-  lets it step the new episode's first state (the race the stamped topic closes).
+  lets it step the new episode's first state (the race the stamped topic closes); realtime
+  takes it as the current state's answer too.
 
 Both: NaN / inf ignored, out-of-range values clamped to the actuator limit, each counted with
 a throttled warning (``CommandCheck``).
@@ -85,11 +86,18 @@ class CommandCheck:
         self.ignored += 1
         self._logger.warning(f'ignoring {why}', throttle_duration_sec=THROTTLE_S)
 
-    def count_late(self, answered: int, current: int, applied: bool) -> None:
-        """Count and report a command answering the state at ``answered`` [ns] when the
-        current state is at ``current`` [ns]."""
+    def count_unanswered(self, current: int) -> None:
+        """Count and report (realtime) the state at ``current`` [ns] that no command
+        answered before the next tick."""
         self.late += 1
-        what = 'applied late' if applied else 'ignored'
-        self._logger.warning(f'command for the state at {answered * 1e-9:.3f} s {what}: the '
+        self._logger.warning(f'no command answered the state at {current * 1e-9:.3f} s '
+                             f'within its tick ({self.late} late so far)',
+                             throttle_duration_sec=THROTTLE_S)
+
+    def count_late(self, answered: int, current: int) -> None:
+        """Count and report (lockstep) an ignored command answering the state at
+        ``answered`` [ns] when the current state is at ``current`` [ns]."""
+        self.late += 1
+        self._logger.warning(f'command for the state at {answered * 1e-9:.3f} s ignored: the '
                              f'current state is at {current * 1e-9:.3f} s ({self.late} late so '
                              'far)', throttle_duration_sec=THROTTLE_S)

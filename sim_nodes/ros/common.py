@@ -1,4 +1,4 @@
-"""Helpers shared by the ROS 2 nodes (SPEC 4; the topic contract is docs/ros_interface.md).
+"""Helpers shared by the ROS 2 nodes (the topic contract is docs/ros_interface.md).
 
 Everything a node needs from a problem's ``ros:`` section, in one place:
 
@@ -126,7 +126,7 @@ def steady_clock() -> Clock:
 
 
 class JointStateLayout:
-    """The state vector of a problem carried in ``sensor_msgs/JointState`` (SPEC 4).
+    """The state vector of a problem carried in ``sensor_msgs/JointState``.
 
     ``name`` = ``ros.joints``; each state coordinate sits in ``position`` or ``velocity`` of
     its joint (the YAML ``state:`` layout); ``effort`` is the actuator's torque/force on

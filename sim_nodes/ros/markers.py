@@ -1,4 +1,4 @@
-"""The pendulum as ``visualization_msgs/MarkerArray`` for Foxglove's 3D panel and RViz (SPEC 4).
+"""The pendulum as ``visualization_msgs/MarkerArray`` for Foxglove's 3D panel and RViz.
 
 The geometry is ``sim_nodes.geometry`` (pure); here it becomes markers in the frame
 ``ros.frame_id`` of the problem, in the x-z plane (x along the rail, z up), each stamped with

@@ -1,4 +1,4 @@
-"""Hold a recorded run until the recorder hears every recorded topic (SPEC 4: nothing lost).
+"""Hold a recorded run until the recorder hears every recorded topic (nothing lost).
 
 A node publishing what a recorder records (the simulator) starts its run only once the
 recorder's ``<recorder>/ready`` service (``std_srvs/Trigger``) answers success: every topic it

@@ -1,10 +1,11 @@
-"""Simulator node: one problem model behind the ROS 2 topic contract (SPEC 4).
+"""Simulator node: one problem model behind the ROS 2 topic contract.
 
 ``SimNode`` wraps the same compiled ``mdp_step`` and ``goal_delta`` the batch evaluator
 uses, so a lockstep episode is bit-identical to ``Evaluator.episode`` (docs/ros_interface.md).
 Its parameters are ``sim_settings.py``'s (validated on every change; ``problem`` and
 ``qos_profile`` are read-only); commands are checked as ``commands.py`` says, markers drawn
-as ``markers.py`` says.
+as ``markers.py`` says.  Service ``~/reset`` (``/<node>/reset``, std_srvs/Trigger) starts a
+new episode; ``/diagnostics`` reports the node's state and counters once a second.
 
 Time: every published new state is one tick (``dt * substeps``, 0.05 s for the pendulums)
 of sim time later than the previous one (an MDP step, or the start of an episode), so
@@ -12,6 +13,20 @@ stamps are distinct and monotonic.
 In lockstep the command answering an episode's final state starts the next episode (with
 auto_reset) instead of stepping, so each state gets exactly one command; a stamped command
 steps only the state it answers.
+
+Start: the first episode waits for the recorder named by ``wait_for_recorder``
+(``recorder_gate.py``).  In realtime (``wait_for_policy``) its first state is then
+re-published until a command answers it (``answer_wait.py``), or the node stops after
+``policy_timeout`` with one line saying what the graph shows; only then is the step timer
+made.  The step, goal test and drawing are compiled (or
+loaded from the cache) in the constructor, so the first tick comes one period after that
+answer, and a tick that comes late puts the next one a whole period off (``CATCH_UP``): no
+stall, and no ticks fired back to back to catch up.  In realtime a state that no command
+answered before the next tick counts as late (``late_commands``).
+
+The file is about 400 lines: one node's episode loop with its ROS wiring; what stands alone
+is split out (``commands``, ``markers``, ``dropped``, ``recorder_gate``, ``answer_wait``,
+``diagnostics``).
 """
 from __future__ import annotations
 
@@ -34,15 +49,20 @@ from sim_nodes.goal import goal_arrays, goal_delta, hold_measures
 from sim_nodes.models import MODELS, model_module
 from sim_nodes.models.registry import GENERIC_SIM, sim_executable
 from sim_nodes.problem import load_problem
+from sim_nodes.ros.answer_wait import AnswerWait
 from sim_nodes.ros.commands import CommandCheck, StampedCommand
 from sim_nodes.ros.common import (CLOCK_QOS, EVENT_QOS, QUIET_PUBLISHER, JointStateLayout,
                                   MessageError, run_node, steady_clock, topic_names, topic_qos)
+from sim_nodes.ros.diagnostics import OK, WARN, NodeDiagnostics, Report
 from sim_nodes.ros.dropped import DropCounter
 from sim_nodes.ros.markers import PendulumMarkers
 from sim_nodes.ros.params import declare
 from sim_nodes.ros.recorder_gate import RecorderGate
 from sim_nodes.ros.sim_settings import (MODES, SimSettings, check_setting,  # noqa: F401
                                         declare_settings, read_settings, sim_parameters)
+
+
+CATCH_UP = 0.6     # realtime: a next tick due sooner than this many periods is put off
 
 
 def _json_number(x: float) -> float | None:
@@ -79,7 +99,7 @@ class SimNode(Node):
         self._reward_pub = self.create_publisher(Float64, topics['reward'], qos, **quiet)
         self._marker_pub = self.create_publisher(MarkerArray, topics['markers'], qos, **quiet)
         self._event_pub = self.create_publisher(String, topics['event'], EVENT_QOS, **quiet)
-        self._clock_pub = self.create_publisher(Clock, '/clock', CLOCK_QOS, **quiet)
+        self._clock_pub = None         # only while publish_clock is true (_configure_clock)
         self._command_sub = self.create_subscription(Float64, topics['command'],
                                                      self._on_command, qos)
         self._stamped_sub = self.create_subscription(JointState, topics['command_stamped'],
@@ -87,7 +107,7 @@ class SimNode(Node):
         self.dropped = {sub.topic_name: DropCounter(self.get_logger(), sub.topic_name,
                                                     sub.get_publisher_count, qos.depth)
                         for sub in (self._command_sub, self._stamped_sub)}
-        self._reset_srv = self.create_service(Trigger, 'reset', self._on_reset)
+        self._reset_srv = self.create_service(Trigger, '~/reset', self._on_reset)
         self._step_timer = None
         self._republish_timer = None
 
@@ -106,6 +126,7 @@ class SimNode(Node):
         self._hold = [0, 0, 0]         # first step in S_delta (0: none), steps held, contacts
         self._effort = 0.0             # applied in the step that produced the state
         self._command = 0.0            # realtime: held command
+        self._answered = False         # realtime: the current state has its command
         self._late_before = 0          # late commands before this episode
         self._running = False          # an episode is in progress
         self._restart_pending = False  # the next tick starts a new episode
@@ -113,8 +134,11 @@ class SimNode(Node):
 
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
-        self._configure_timers()
-        self._gate = RecorderGate(self, self._start_episode)  # the first episode
+        self._configure_clock()
+        self._warm_up()
+        self._wait: AnswerWait | None = None    # realtime start (answer_wait.py)
+        self.diagnostics = NodeDiagnostics(self, 'simulator', problem.name, self._report)
+        self._gate = RecorderGate(self, self._first_episode)  # the first episode
         s = self.settings
         self.get_logger().info(
             f'{problem.name} sim: mode {s.mode}, delta {s.delta}, n_step {s.n_step}, '
@@ -137,6 +161,18 @@ class SimNode(Node):
             self._configure_timers()
         if self.settings.mode != old.mode:
             self.get_logger().info(f'mode {self.settings.mode}')
+        if self.settings.publish_clock != old.publish_clock:
+            self._configure_clock()
+
+    def _configure_clock(self) -> None:
+        """A /clock publisher exactly while ``publish_clock`` is true (a simulator that does
+        not publish the clock is no /clock publisher on the graph)."""
+        if self.settings.publish_clock and self._clock_pub is None:
+            self._clock_pub = self.create_publisher(Clock, '/clock', CLOCK_QOS,
+                                                    event_callbacks=QUIET_PUBLISHER)
+        elif not self.settings.publish_clock and self._clock_pub is not None:
+            self.destroy_publisher(self._clock_pub)
+            self._clock_pub = None
 
     def _configure_timers(self) -> None:
         for timer in (self._step_timer, self._republish_timer):
@@ -145,6 +181,8 @@ class SimNode(Node):
         self._step_timer = self._republish_timer = None
         s = self.settings
         period = self._tick_ns * 1e-9 / s.real_time_factor
+        if self._wait is not None:
+            return                      # realtime start: the first answer makes them
         if s.mode == 'realtime':
             self._step_timer = self.create_timer(period, self._on_step_timer,
                                                  clock=steady_clock())
@@ -167,6 +205,7 @@ class SimNode(Node):
         if self.settings.mode == 'lockstep':
             self._advance(value)
         else:
+            self._answered = True       # no stamp: the answer to the current state
             self._command = value
 
     def _on_stamped_command(self, msg: JointState, info: dict) -> None:
@@ -183,16 +222,22 @@ class SimNode(Node):
         current = self._tick * self._tick_ns
         if self.settings.mode == 'lockstep':
             if answered != current:
-                self.commands.count_late(answered, current, applied=False)
+                self.commands.count_late(answered, current)
                 return
             self._advance(value)
         else:
-            if answered < current:
-                self.commands.count_late(answered, current, applied=True)
+            # one answering an older state is applied all the same (the freshest the policy
+            # said); that state was counted unanswered when its tick passed
+            self._answered = self._answered or answered == current
             self._command = value
 
     def _on_step_timer(self) -> None:
+        if self._running and not self._answered:
+            self.commands.count_unanswered(self._tick * self._tick_ns)
         self._advance(self._command)
+        timer = self._step_timer
+        if timer is not None and timer.time_until_next_call() < CATCH_UP * timer.timer_period_ns:
+            timer.reset()   # this tick came late: the next one a whole period from now
 
     def _on_republish(self) -> None:
         if self._tick >= 0:             # a state was published (the recorder gate is open)
@@ -208,6 +253,52 @@ class SimNode(Node):
         response.success = True
         response.message = f'episode {self._episode} started'
         return response
+
+    # the start ------------------------------------------------------------------------------
+
+    def _warm_up(self) -> None:
+        """Run the step, the goal test and the drawing once on scratch data, so that their
+        compilation (or cache load) happens now, not in the first ticks of a run."""
+        s = self._s0.copy()
+        self._mdp_step(s, 0.0, self._p)
+        goal_delta(s, self._best, self._inv_scale, self._fixed, self._is_angle)
+        self._markers.state(s, 0, self.settings.delta)
+        self._layout.fill(self._layout.new_msg(), s, 0.0, 0)
+
+    def _first_episode(self) -> None:
+        """The recorder is ready: start the first episode.  Realtime ticks count from the
+        policy's first answer (``wait_for_policy``: ``answer_wait.py``) or from now."""
+        self._start_episode()
+        if self.settings.mode == 'realtime' and self.get_parameter('wait_for_policy').value:
+            self._wait = AnswerWait(
+                self, lambda: self._answered, lambda: self._state_pub.publish(self._state_msg),
+                self._answered_first, (self._state_pub.topic_name,
+                                       self._stamped_sub.topic_name),
+                self.get_parameter('policy_timeout').value)
+        else:
+            self._configure_timers()
+
+    def _answered_first(self) -> None:
+        self._wait = None
+        self._configure_timers()
+
+    def _report(self) -> Report:
+        """The node's /diagnostics: what it is doing, its counters."""
+        s, c = self.settings, self.commands
+        if not self._gate.open:
+            level, message = WARN, f'waiting for recorder {self._gate.recorder!r}'
+        elif self._wait is not None:
+            level, message = WARN, 'waiting for a command answering the first state'
+        else:
+            what = 'running' if self._running else 'between episodes'
+            level, message = OK, f'{s.mode}: episode {self._episode} {what}, step {self._step}'
+        dropped = sum(d.count for d in self.dropped.values())
+        return level, message, {
+            'mode': s.mode, 'episode': self._episode, 'step': self._step,
+            'total_steps': self.total_steps, 'sim_time': self._tick * self._tick_ns / 1e9,
+            'delta': float(s.delta), 'real_time_factor': float(s.real_time_factor),
+            'late_commands': c.late, 'ignored_commands': c.ignored,
+            'clamped_commands': c.clamped, 'dropped_commands': dropped}
 
     # the episode ----------------------------------------------------------------------------
 
@@ -277,13 +368,14 @@ class SimNode(Node):
     def _publish_state(self) -> None:
         """Publish the state (its markers and /clock) at the current tick."""
         ns = self._tick * self._tick_ns
+        self._answered = False
         self._layout.fill(self._state_msg, self._s, self._effort, ns)
         self._state_pub.publish(self._state_msg)
         s = self.settings
         self._marker_msg = self._markers.state(self._s, ns, s.delta) if s.markers else None
         if self._marker_msg is not None:
             self._marker_pub.publish(self._marker_msg)
-        if s.publish_clock:
+        if self._clock_pub is not None:
             self._clock_msg.clock = self._state_msg.header.stamp
             self._clock_pub.publish(self._clock_msg)
 

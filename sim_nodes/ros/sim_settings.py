@@ -12,8 +12,10 @@ step per tick of wall time / ``real_time_factor``, zero-order hold on the latest
 ``auto_reset``, ``max_episodes`` (the reset service still starts episodes beyond it),
 ``republish_period`` (lockstep: the waiting state again, same stamp), ``publish_clock``
 (false for all but one of several simulators in one domain), ``markers``, ``qos_profile``
-(read-only; ``sensor_data``: best effort, depth 5, for realtime runs), and the recorder
-gate's ``wait_for_recorder`` and ``recorder_timeout`` (``recorder_gate.py``).
+(read-only; ``sensor_data``: best effort, depth 5, for realtime runs), ``wait_for_policy``
+and ``policy_timeout`` (realtime: the first tick waits for a command answering the first
+state, which is re-published meanwhile; exit 1 after the timeout), and the recorder gate's
+``wait_for_recorder`` and ``recorder_timeout`` (``recorder_gate.py``).
 """
 from __future__ import annotations
 
@@ -67,6 +69,10 @@ def sim_parameters(default_problem: str) -> list[Param]:
         Param('markers', True, 'publish the pendulum as visualization_msgs/MarkerArray'),
         Param('qos_profile', 'reliable', 'reliable (the problem ros.qos) | sensor_data (best '
               'effort)', choices=QOS_PROFILES, read_only=True),
+        Param('wait_for_policy', True, 'realtime: step only once a command answered the first '
+              'state (re-published meanwhile); false: step at once', read_only=True),
+        Param('policy_timeout', 60.0, 'how long realtime waits for that answer (longer: the '
+              'node stops, exit 1)', 1e-3, 86400.0, read_only=True, unit='s'),
         *gate_parameters()]
 
 
