@@ -208,3 +208,37 @@ def test_the_hold_experiment_set_parses_and_its_classical_rows_run(tmp_path):
     summary = {s['id']: s['final'] for s in summaries}
     assert summary[5]['holding'] == 1 and summary[10]['holding_clean'] == 1
     assert 'hold fraction' in (tmp_path / 'x' / 'summary.md').read_text()
+
+
+@pytest.mark.parametrize('name', ['acrobot_hold', 'pdip_hold'])
+def test_the_gym_env_runs_the_hold_task_like_the_engine(name):
+    """Evaluator episodes replayed through the Gymnasium env: the same states, rewards plus
+    the bonus in S_delta summing to the engine's return, no goal end; under end_stop: fail
+    the contact terminates."""
+    import gymnasium
+    import sapga_ros.gym
+    pr = load_problem(name)
+    env = gymnasium.make(sapga_ros.gym.ENV_IDS[name])
+    rng = np.random.default_rng(5)
+    index = {v: i for i, v in enumerate(pr.actions)}
+    for policy in [classical_policy_of(pr)] + [
+            ExemplarPolicy(pr, rng.uniform(pr.low, pr.high, (8, pr.dim)),
+                           rng.integers(0, len(pr.actions), 8)) for _ in range(3)]:
+        ep = Evaluator(pr).episode(policy)
+        env.reset(seed=0)
+        total, states = 0.0, []
+        for t, a in enumerate(ep.actions):
+            obs, r, terminated, truncated, _ = env.step(index[a])
+            states.append(obs)
+            inside = reference.goal_delta(pr, ep.states[t + 1]) <= pr.default_delta
+            assert r == ep.rewards[t] + (pr.hold_bonus if inside else 0.0)
+            total += r
+        assert np.array_equal(np.array(states), ep.states[1:])
+        assert total == pytest.approx(ep.ret, rel=1e-12)   # the engine adds the bonus apart
+        assert terminated == (ep.contacts > 0 and pr.end_stop == 'fail')
+        assert truncated == (not terminated and ep.steps == pr.n_step)
+
+
+def classical_policy_of(problem):
+    from sapga_ros.policies.classical import classical_policy
+    return classical_policy(problem)

@@ -229,3 +229,18 @@ def test_swingup_runs_the_classical_controller_on_the_hold_task(tmp_path, capsys
     for key in ('return', 'first_entry_step', 'hold_fraction', 'rail_contacts'):
         assert end[key] == expected[key], key
     assert end['hold_fraction'] >= 0.95
+
+
+def test_swingup_runs_a_hybrid_policy_like_sapga_eval(tmp_path, capsys):
+    """An exemplar policy with an LQR catch (sapga train --catch lqr) through the policy
+    node: the lockstep hold episode equals sapga eval, hold measures included."""
+    assert cli.main(['train', '--problem', 'acrobot_hold', '--steps', '300000', '--seed', '1',
+                     '--catch', 'lqr', '--quiet', '--out', str(tmp_path / 'h.json')]) == 0
+    capsys.readouterr()
+    done = launch(['swingup', '--policy', 'h.json', '--mode', 'lockstep', '--episodes', '1',
+                   '--out', 'rec'], tmp_path)
+    assert 'every lockstep episode is equal' in done.stdout
+    (end,), _ = recorded_episodes(the_bag(tmp_path / 'rec'))
+    expected = sapga_eval_json(tmp_path / 'h.json', capsys)
+    for key in ('return', 'steps', 'first_entry_step', 'hold_fraction', 'rail_contacts'):
+        assert end['step' if key == 'steps' else key] == expected[key], key

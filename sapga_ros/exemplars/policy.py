@@ -224,20 +224,7 @@ def policy_from_document(doc: Any, problem: str | Problem | None = None,
     for key in ('format', 'problem', 'style', 'state_names', 'actions', 'exemplars'):
         if key not in doc:
             raise PolicyFileError(f'{source}: missing field {key!r}')
-    if doc['format'] != FORMAT:
-        raise PolicyFileError(f'{source}: format: expected {FORMAT!r}, '
-                              f'got {excerpt(doc["format"])}')
-    if not isinstance(doc['problem'], str):
-        raise PolicyFileError(f'{source}: problem: expected a string')
-    try:
-        prob = load_problem(doc['problem'])
-    except SapgaError as exc:
-        raise PolicyFileError(f'{source}: problem: {exc}') from exc
-    if problem is not None:
-        want = problem if isinstance(problem, str) else problem.name
-        if prob.name != want:
-            raise PolicyFileError(f'{source}: problem: policy is for {prob.name!r}, '
-                                  f'expected {want!r}')
+    prob = document_problem(doc, problem, source)
     if not isinstance(doc['style'], str) or doc['style'] not in STYLES:
         raise PolicyFileError(f'{source}: style: {excerpt(doc["style"])} is not supported '
                               f'(supported: {", ".join(STYLES)})')
@@ -289,6 +276,26 @@ def policy_from_document(doc: Any, problem: str | Problem | None = None,
         from sapga_ros.policies.classical import attach_catch
         return attach_catch(policy, doc['catch'], source)
     return policy
+
+
+def document_problem(doc: dict, problem: str | Problem | None, source: str) -> Problem:
+    """The problem a policy document names, after checking its ``format``; ``problem`` (if
+    given) must be that one."""
+    if doc['format'] != FORMAT:
+        raise PolicyFileError(f'{source}: format: expected {FORMAT!r}, '
+                              f'got {excerpt(doc["format"])}')
+    if not isinstance(doc['problem'], str):
+        raise PolicyFileError(f'{source}: problem: expected a string')
+    try:
+        prob = load_problem(doc['problem'])
+    except SapgaError as exc:
+        raise PolicyFileError(f'{source}: problem: {exc}') from exc
+    if problem is not None:
+        want = problem if isinstance(problem, str) else problem.name
+        if prob.name != want:
+            raise PolicyFileError(f'{source}: problem: policy is for {prob.name!r}, '
+                                  f'expected {want!r}')
+    return prob
 
 
 def _read_state(st: Any, where: str, prob: Problem, out: np.ndarray) -> None:

@@ -11,9 +11,11 @@ observation space   ``Box(problem.low, problem.high)``, float64: the state vecto
                     YAML's layout and units (angles in [0, 2pi))
 start               the problem's fixed initial state (``initial:``); a seed is accepted but
                     the start draws nothing
-reward              the kernel's reward of the MDP step
+reward              the kernel's reward of the MDP step (+ ``hold_bonus`` in S_delta on a
+                    problem with ``ends_in_goal: false``, the hold task)
 terminated          ``delta(s) <= delta`` on the new state, after its reward is counted
-truncated           after ``n_step`` MDP steps without reaching the goal
+                    (never on the hold task); an end-stop contact under ``end_stop: fail``
+truncated           after ``n_step`` MDP steps without an end
 info                ``delta``: delta(s) of the observed state; ``delta_star``: the least
                     delta(s) of the episode so far, the initial state included
 ==================  =========================================================================
@@ -95,7 +97,12 @@ class ProblemEnv(gymnasium.Env[np.ndarray, np.int64]):
         self._steps += 1
         d = self._delta()
         self._delta_star = min(self._delta_star, d)
-        terminated = d <= self.delta                    # after the step's reward is counted
+        p = self.problem
+        terminated = d <= self.delta and p.ends_in_goal  # after the step's reward is counted
+        if d <= self.delta and not p.ends_in_goal:      # the hold task: bonus, no end
+            reward += p.hold_bonus
+        if reward < p.contact_below and p.end_stop == 'fail':
+            terminated = True                           # an end-stop contact ends it
         truncated = not terminated and self._steps >= self.n_step
         self._over = terminated or truncated
         return (self._state.copy(), reward, terminated, truncated,

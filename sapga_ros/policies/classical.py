@@ -27,10 +27,10 @@ import numpy as np
 
 from sapga_ros.errors import PolicyFileError, SapgaError
 from sapga_ros.exemplars.policy import (FORMAT, ExemplarPolicy, _check_finite_tree, _finite,
-                                        json_safe)
+                                        document_problem, json_safe)
 from sapga_ros.policies import control as C
 from sapga_ros.policies.lqr import regulator
-from sim_nodes.problem import Problem, load_problem
+from sim_nodes.problem import Problem
 
 KIND = 'classical'
 LAWS = {  # law -> (swing-up kind, gain names in order)
@@ -195,19 +195,7 @@ def classical_from_document(doc: dict, problem: str | Problem | None,
     for key in ('format', 'problem', 'state_names', 'actions', 'controller'):
         if key not in doc:
             raise PolicyFileError(f'{source}: missing field {key!r}')
-    if doc['format'] != FORMAT:
-        raise PolicyFileError(f'{source}: format: expected {FORMAT!r}')
-    if not isinstance(doc['problem'], str):
-        raise PolicyFileError(f'{source}: problem: expected a string')
-    try:
-        prob = load_problem(doc['problem'])
-    except Exception as exc:  # noqa: BLE001 - reported as a policy file error
-        raise PolicyFileError(f'{source}: problem: {exc}') from exc
-    if problem is not None:
-        want = problem if isinstance(problem, str) else problem.name
-        if prob.name != want:
-            raise PolicyFileError(f'{source}: problem: policy is for {prob.name!r}, '
-                                  f'expected {want!r}')
+    prob = document_problem(doc, problem, source)
     if doc['state_names'] != list(prob.state_names):
         raise PolicyFileError(f'{source}: state_names: expected {list(prob.state_names)}')
     actions = doc['actions']
