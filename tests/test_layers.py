@@ -4,13 +4,14 @@ Ranks, lowest first; a module may import from its own rank or a lower one:
 
 0. ``sim_nodes`` - the environment (problem configs, model kernels, goal); never ``sapga_ros``
 1. ``sapga_ros.errors``, ``sapga_ros.io`` - typed errors, file primitives, checkpoints
-2. ``sapga_ros.exemplars``, ``.evaluation``, ``.optim`` - the method core
-3. ``sapga_ros.training``, ``.recording``, ``.analysis`` - training runs and experiments;
+2. ``sapga_ros.policies`` - every policy kind and its file format
+3. ``sapga_ros.exemplars``, ``.evaluation``, ``.optim`` - the method core
+4. ``sapga_ros.training``, ``.recording``, ``.analysis`` - training runs and experiments;
    recordings; the problems' physical limits
-4. ``sapga_ros.nodes``, ``.launch``, ``sim_nodes.ros`` - ROS shells
-5. ``sapga_ros.cli``, ``.bench``, ``.viz`` - applications
+5. ``sapga_ros.nodes``, ``.launch``, ``sim_nodes.ros`` - ROS shells
+6. ``sapga_ros.cli``, ``.bench``, ``.viz`` - applications
 
-ROS (``rclpy`` and message packages) is imported only from rank 4 up; ``sim_nodes.ros``
+ROS (``rclpy`` and message packages) is imported only from rank 5 up; ``sim_nodes.ros``
 imports nothing from ``sapga_ros`` either.  Every import counts, also one inside a function.
 """
 from __future__ import annotations
@@ -22,17 +23,18 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ('sim_nodes', 'sapga_ros')
 RANKS = {
-    'sim_nodes.ros': 4,
+    'sim_nodes.ros': 5,
     'sim_nodes': 0,
     'sapga_ros.errors': 1, 'sapga_ros.io': 1,
-    'sapga_ros.exemplars': 2, 'sapga_ros.evaluation': 2, 'sapga_ros.optim': 2,
-    'sapga_ros.training': 3, 'sapga_ros.recording': 3, 'sapga_ros.analysis': 3,
-    'sapga_ros.gym': 3,
-    'sapga_ros.nodes': 4, 'sapga_ros.launch': 4,
-    'sapga_ros.cli': 5, 'sapga_ros.bench': 5, 'sapga_ros.viz': 5,
+    'sapga_ros.policies': 2,
+    'sapga_ros.exemplars': 3, 'sapga_ros.evaluation': 3, 'sapga_ros.optim': 3,
+    'sapga_ros.training': 4, 'sapga_ros.recording': 4, 'sapga_ros.analysis': 4,
+    'sapga_ros.gym': 4,
+    'sapga_ros.nodes': 5, 'sapga_ros.launch': 5,
+    'sapga_ros.cli': 6, 'sapga_ros.bench': 6, 'sapga_ros.viz': 6,
     'sapga_ros': 1,  # the package itself: __version__
 }
-ROS_RANK = 4
+ROS_RANK = 5
 ROS_MODULES = ('rclpy', 'rcl_interfaces', 'rosgraph_msgs', 'sensor_msgs', 'std_msgs',
                'std_srvs', 'diagnostic_msgs', 'visualization_msgs', 'geometry_msgs',
                'builtin_interfaces')

@@ -14,7 +14,7 @@ from ros_helpers import isolated_ros
 from sapga_ros.cli.main import build_parser
 from sapga_ros.cli.train import train_config
 from sapga_ros.errors import ConfigError
-from sapga_ros.exemplars.styles import STYLES
+from sapga_ros.policies.styles import STYLES
 from sapga_ros.nodes.trainer_node import TrainerNode
 from sapga_ros.nodes.trainer_params import NodeSettings, parameters
 from sapga_ros.optim.qlearner import QlParams

@@ -20,7 +20,7 @@ from sapga_ros.errors import ConfigError
 from sapga_ros.evaluation.evaluator import Evaluator
 from sapga_ros.nodes.policy_node import PolicyNode
 from sapga_ros.nodes.trainer_node import TrainerNode
-from sapga_ros.exemplars.policy import ExemplarPolicy, load_policy, policy_from_json
+from sapga_ros.policies.exemplar import ExemplarPolicy, load_policy, policy_from_json
 from sapga_ros.optim.sapga import SapgaParams
 from sapga_ros.training.loop import TrainConfig, train_sapga
 from sim_nodes.problem import load_problem

@@ -37,7 +37,7 @@ from sapga_ros.cli.recordings import (add_bag_arguments, add_inspect_arguments, 
 from sapga_ros.cli.train import add_train_arguments, cmd_train
 from sapga_ros import package_version
 from sapga_ros.errors import SapgaError
-from sapga_ros.exemplars.styles import STYLES
+from sapga_ros.policies.styles import STYLES
 from sapga_ros.launch.prefix import ensure_ament_prefix
 
 EXIT_USAGE = 2
@@ -105,7 +105,8 @@ def _eval_delta(args, policy) -> float:
 
 
 def cmd_eval(args) -> int:
-    from sapga_ros.evaluation.any_policy import load_any_policy, run_policy_episode
+    from sapga_ros.evaluation.evaluator import run_policy_episode
+    from sapga_ros.policies.kinds import load_any_policy
     policy = load_any_policy(args.policy)
     delta = _eval_delta(args, policy)
     ep = run_policy_episode(policy, delta, args.max_steps)
@@ -119,11 +120,11 @@ def cmd_eval(args) -> int:
 
 
 def cmd_exemplars(args) -> int:
-    from sapga_ros.evaluation.any_policy import run_policy_episode
     import numpy as np
 
+    from sapga_ros.evaluation.evaluator import run_policy_episode
     from sapga_ros.exemplars.tools import exemplar_table, format_table
-    from sapga_ros.exemplars.policy import load_policy
+    from sapga_ros.policies.exemplar import load_policy
     policy = load_policy(args.policy)
     delta = _eval_delta(args, policy)
     ep = run_policy_episode(policy, delta)

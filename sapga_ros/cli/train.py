@@ -84,7 +84,7 @@ class _Progress:
 
 
 def cmd_train(args: argparse.Namespace) -> int:
-    from sapga_ros.exemplars.policy import load_policy
+    from sapga_ros.policies.exemplar import load_policy
     from sapga_ros.training.loop import train, write_log
     from sim_nodes.problem import load_problem
 

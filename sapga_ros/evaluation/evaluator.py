@@ -7,6 +7,7 @@ episode's accumulated reward; the evaluation is deterministic.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numba
 import numpy as np
@@ -14,8 +15,9 @@ import numpy as np
 from sapga_ros.errors import SapgaError
 from sapga_ros.evaluation.engine import BLOCKS_PER_THREAD, evaluate_batch, run_share
 from sapga_ros.exemplars.distance import normalize_states
-from sapga_ros.exemplars.policy import ExemplarPolicy
-from sapga_ros.exemplars.styles import STYLES
+from sapga_ros.policies.episode import Episode
+from sapga_ros.policies.exemplar import ExemplarPolicy
+from sapga_ros.policies.styles import STYLES
 from sim_nodes.models import model_id
 from sim_nodes.goal import alt_goal_arrays, goal_arrays
 from sim_nodes.problem import Problem
@@ -31,25 +33,6 @@ class BatchResult:
     reached: np.ndarray     # ended in S_delta
     used: list              # per policy: bool (L,), exemplars referred to
     delta_star_alt: np.ndarray | None = None  # delta* under the alternative goal reading
-
-
-@dataclass(frozen=True)
-class Episode:
-    """One recorded episode."""
-
-    states: np.ndarray      # (steps + 1, D), initial state first
-    actions: np.ndarray     # (steps,) action values
-    exemplars: np.ndarray   # (steps,) index of the exemplar the selector reported (-1: none)
-    rewards: np.ndarray     # (steps,)
-    ret: float
-    steps: int
-    delta_star: float
-    reached: bool
-    used: np.ndarray | None = None  # (L,) exemplars referred to (exemplar policies)
-
-    def summary(self) -> dict:
-        return {'return': self.ret, 'delta_star': self.delta_star, 'steps': self.steps,
-                'reached': self.reached}
 
 
 def set_jobs(jobs: int | None) -> int:
@@ -147,3 +130,11 @@ class Evaluator:
         return Episode(tr_state[:n + 1].copy(), tr_act[:n].copy(), tr_idx[:n].copy(),
                        tr_reward[:n].copy(), float(returns[0]), n, float(dstar[0]),
                        bool(reached[0]), used[0, :len(policy)].copy())
+
+
+def run_policy_episode(policy: Any, delta: float, max_steps: int | None = None) -> Episode:
+    """One recorded episode of a policy of any kind: an exemplar policy runs on the episode
+    engine, every other kind runs its own ``episode`` (``sapga_ros.policies.kinds``)."""
+    if isinstance(policy, ExemplarPolicy):
+        return Evaluator(policy.problem, delta, max_steps).episode(policy)
+    return policy.episode(delta, max_steps)

@@ -120,7 +120,7 @@ def policy_delta(policy: Any, given: float | None) -> float:
 
 def run_swingup(args: argparse.Namespace, sup: Supervisor) -> SwingupResult:
     """The launch itself, under ``sup`` (which stops the nodes whatever happens)."""
-    from sapga_ros.exemplars.policy import load_policy
+    from sapga_ros.policies.exemplar import load_policy
     problem = load_problem(args.problem) if args.problem else None
     policy = load_policy(Path(args.policy).resolve(), problem)   # checked before any start
     problem = policy.problem

@@ -71,7 +71,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def run_train_deploy(args: argparse.Namespace, sup: Supervisor) -> TrainDeployResult:
     """The launch itself, under ``sup`` (which stops the nodes whatever happens)."""
-    from sapga_ros.exemplars.policy import policy_from_json
+    from sapga_ros.policies.exemplar import policy_from_json
     if args.seed < 0 or args.jobs < 0:
         raise LaunchError('--seed and --jobs: expected integers >= 0')
     problem = load_problem(args.problem)

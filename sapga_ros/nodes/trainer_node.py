@@ -52,7 +52,7 @@ from std_srvs.srv import Trigger
 
 from sapga_ros.errors import ConfigError, SapgaError
 from sim_nodes.ros.common import run_node, steady_clock
-from sapga_ros.exemplars.policy import ExemplarPolicy, load_policy
+from sapga_ros.policies.exemplar import ExemplarPolicy, load_policy
 from sapga_ros.nodes.trainer_params import PROBLEM, check_setting, parameters, train_config
 from sapga_ros.nodes.trainer_run import RunHooks, TrainingRun
 from sapga_ros.nodes.trainer_status import RunStatus, diagnostics

@@ -26,7 +26,7 @@ import cma
 import numpy as np
 
 from sapga_ros.evaluation.evaluator import BatchResult, Evaluator
-from sapga_ros.exemplars.policy import ExemplarPolicy
+from sapga_ros.policies.exemplar import ExemplarPolicy
 from sim_nodes.problem import Problem, load_problem
 
 Progress = Callable[[dict[str, Any]], None]

@@ -11,7 +11,7 @@ from typing import Any
 import yaml
 
 from sapga_ros.errors import ConfigError
-from sapga_ros.exemplars.styles import STYLES
+from sapga_ros.policies.styles import STYLES
 from sapga_ros.io.bounded import load_yaml, read_bounded
 from sim_nodes.goal import alternative_goal
 from sim_nodes.problem import config_dir, load_problem

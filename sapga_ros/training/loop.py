@@ -28,7 +28,7 @@ import numpy as np
 from sapga_ros import __version__
 from sapga_ros.errors import CheckpointError, ConfigError
 from sapga_ros.evaluation.evaluator import Evaluator, set_jobs
-from sapga_ros.exemplars.policy import ExemplarPolicy
+from sapga_ros.policies.exemplar import ExemplarPolicy
 from sapga_ros.io.atomic import write_atomic
 from sapga_ros.optim.base import Optimizer
 from sapga_ros.optim.qlearner import QLearning, QlParams, learn_together

@@ -17,7 +17,7 @@ import numpy as np
 
 from sapga_ros.errors import SapgaError
 from sapga_ros.evaluation.evaluator import Evaluator
-from sapga_ros.exemplars.policy import policy_from_document
+from sapga_ros.policies.exemplar import policy_from_document
 from sapga_ros.io.atomic import write_atomic
 from sapga_ros.io.bounded import read_bounded
 
@@ -142,7 +142,7 @@ def figure5(out: Path) -> list[str]:
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
 
-    from sapga_ros.optim.qlearning import cell_index, greedy
+    from sapga_ros.policies.qtable import cell_index, greedy
     from sapga_ros.training.loop import TrainConfig, train
     from sapga_ros.viz.exemplar_plot import policy_map
     runs = {m: train(TrainConfig(problem='mountain_car', method=m, steps=FIG5_STEPS, seed=0))

@@ -1,7 +1,7 @@
-"""Exemplar policies and the public policy file format (SPEC 3.1, 3.3).
+"""Exemplar policies and their file format ``sapga-policy/1`` (SPEC 3.1, 3.3).
 
 A policy is a set of exemplar records plus the action selector of its ``style``
-(``sapga_ros.exemplars.styles``).  In memory, one row per exemplar: ``states`` (L, D) raw
+(``sapga_ros.policies.styles``).  In memory, one row per exemplar: ``states`` (L, D) raw
 float64 with angles wrapped to [0, 2pi), ``states2`` (L, D) for state-state (else (L, 0)),
 ``actions`` (L,) integer indices into the problem's action set and ``values`` (L,) (zeros
 where the style has none).  On disk: a UTF-8 JSON document
@@ -21,13 +21,13 @@ from typing import Any
 import numpy as np
 
 from sapga_ros.errors import PolicyFileError, SapgaError
-from sapga_ros.exemplars.styles import STYLES, style_named
 from sapga_ros.io.atomic import write_atomic
-from sapga_ros.io.bounded import TooLarge, read_bounded
+from sapga_ros.policies.jsonfile import (excerpt, finite, json_safe, meta_of, parse_json,
+                                         read_policy_bytes)
+from sapga_ros.policies.styles import STYLES, style_named
 from sim_nodes.problem import Problem, load_problem
 
 FORMAT = 'sapga-policy/1'
-MAX_POLICY_BYTES = 64 * 1024 * 1024  # a Q-learning export of 20^4 tiles is ~15 MB
 
 
 @dataclass
@@ -162,54 +162,6 @@ def concat_policies(parts: list[ExemplarPolicy]) -> ExemplarPolicy:
                                    np.concatenate([p.states2 for p in parts]))
 
 
-def _reject_constant(name: str) -> float:
-    """NaN/Infinity literals parse to floats; validation then names the field holding one."""
-    return float(name)
-
-
-def excerpt(value: Any, limit: int = 60) -> str:
-    """A short repr of a (possibly huge, hostile) value for an error message."""
-    text = repr(value)
-    return text if len(text) <= limit else text[:limit] + '...'
-
-
-def json_safe(value: Any) -> Any:
-    """``value`` with every non-finite float replaced by None (JSON has no inf or NaN)."""
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    if isinstance(value, dict):
-        return {k: json_safe(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [json_safe(v) for v in value]
-    return value
-
-
-def _check_finite_tree(value: Any, where: str, depth: int = 0) -> None:
-    """Every number inside ``value`` (free-form meta) is finite."""
-    if depth > 50:
-        raise PolicyFileError(f'{where}: nested too deeply')
-    if isinstance(value, float) and not math.isfinite(value):
-        raise PolicyFileError(f'{where}: not a finite number ({json.dumps(value)})')
-    if isinstance(value, dict):
-        for k, v in value.items():
-            _check_finite_tree(v, f'{where}.{k}', depth + 1)
-    elif isinstance(value, list):
-        for i, v in enumerate(value):
-            _check_finite_tree(v, f'{where}[{i}]', depth + 1)
-
-
-def _finite(value: Any, where: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise PolicyFileError(f'{where}: expected a number, got {excerpt(value, 40)}')
-    try:
-        number = float(value)
-    except OverflowError:
-        raise PolicyFileError(f'{where}: number too large ({excerpt(value, 40)})') from None
-    if not math.isfinite(number):
-        raise PolicyFileError(f'{where}: not a finite number ({json.dumps(number)})')
-    return number
-
-
 def policy_from_document(doc: Any, problem: str | Problem | None = None,
                          source: str = 'policy') -> ExemplarPolicy:
     """Validate a parsed policy document; ``problem`` (if given) must match its problem."""
@@ -242,7 +194,7 @@ def policy_from_document(doc: Any, problem: str | Problem | None = None,
     actions = doc['actions']
     if not isinstance(actions, list):
         raise PolicyFileError(f'{source}: actions: expected a list')
-    values = [_finite(a, f'{source}: actions[{i}]') for i, a in enumerate(actions)]
+    values = [finite(a, f'{source}: actions[{i}]') for i, a in enumerate(actions)]
     if values != list(prob.actions):
         raise PolicyFileError(f'{source}: actions: expected {list(prob.actions)} for '
                               f'{prob.name}, got {values}')
@@ -267,18 +219,14 @@ def policy_from_document(doc: Any, problem: str | Problem | None = None,
                 _read_state(e[key], f'{where}.{key}', prob,
                             states[j] if name == 'state' else states2[j])
             elif name == 'action':
-                a = _finite(e[key], f'{where}.{key}')
+                a = finite(e[key], f'{where}.{key}')
                 if a not in index:
                     raise PolicyFileError(f'{where}.{key}: {a} is not one of {values}')
                 acts[j] = index[a]
             else:
-                vals[j] = _finite(e[key], f'{where}.{key}')
-    meta = doc.get('meta', {})
-    if not isinstance(meta, dict):
-        raise PolicyFileError(f'{source}: meta: expected an object')
-    _check_finite_tree(meta, f'{source}: meta')
-    return ExemplarPolicy(prob, states, acts, meta=meta, style=spec.name, values=vals,
-                          states2=states2 if spec.uses('state2') else None)
+                vals[j] = finite(e[key], f'{where}.{key}')
+    return ExemplarPolicy(prob, states, acts, meta=meta_of(doc, source), style=spec.name,
+                          values=vals, states2=states2 if spec.uses('state2') else None)
 
 
 def _read_state(st: Any, where: str, prob: Problem, out: np.ndarray) -> None:
@@ -289,43 +237,15 @@ def _read_state(st: Any, where: str, prob: Problem, out: np.ndarray) -> None:
         raise PolicyFileError(f'{where}: expected {dim} numbers '
                               f'({", ".join(prob.state_names)}), got {got}')
     for d, x in enumerate(st):
-        out[d] = _finite(x, f'{where}[{d}] ({prob.state_names[d]})')
+        out[d] = finite(x, f'{where}[{d}] ({prob.state_names[d]})')
 
 
 def policy_from_json(text: str | bytes, problem: str | Problem | None = None,
                      source: str = 'policy') -> ExemplarPolicy:
     """Parse and validate a policy document from its JSON text."""
-    if isinstance(text, bytes):
-        if len(text) > MAX_POLICY_BYTES:
-            raise PolicyFileError(f'{source}: {len(text)} bytes, larger than the '
-                                  f'{MAX_POLICY_BYTES // (1024 * 1024)} MB limit')
-        try:
-            text = text.decode('utf-8')
-        except UnicodeDecodeError as exc:
-            raise PolicyFileError(f'{source}: not UTF-8 text (byte {exc.start})') from exc
-    if len(text) > MAX_POLICY_BYTES:
-        raise PolicyFileError(f'{source}: larger than the '
-                              f'{MAX_POLICY_BYTES // (1024 * 1024)} MB limit')
-    try:
-        doc = json.loads(text, parse_constant=_reject_constant)
-    except json.JSONDecodeError as exc:
-        raise PolicyFileError(f'{source}: malformed JSON ({exc.msg}, line {exc.lineno} '
-                              f'column {exc.colno})') from exc
-    except ValueError as exc:
-        raise PolicyFileError(f'{source}: {exc}') from exc
-    except RecursionError as exc:
-        raise PolicyFileError(f'{source}: JSON nested too deeply') from exc
-    return policy_from_document(doc, problem, source)
+    return policy_from_document(parse_json(text, source), problem, source)
 
 
 def load_policy(path: str | os.PathLike, problem: str | Problem | None = None) -> ExemplarPolicy:
     """Read and validate a policy file (size-checked before it is read)."""
-    path = Path(path)
-    try:
-        data = read_bounded(path, MAX_POLICY_BYTES)
-    except TooLarge:
-        raise PolicyFileError(f'{path}: larger than the '
-                              f'{MAX_POLICY_BYTES // (1024 * 1024)} MB limit') from None
-    except OSError as exc:
-        raise PolicyFileError(f'{path}: cannot read ({exc.strerror or exc})') from exc
-    return policy_from_json(data, problem, str(path))
+    return policy_from_json(read_policy_bytes(path), problem, str(path))
