@@ -78,7 +78,7 @@ def test_cli_refuses_values_outside_the_bounds(argv, needle, capsys):
 def test_dataclasses_refuse_values_outside_the_bounds():
     """Constructing a config out of bounds is a ConfigError naming the field."""
     for make, name in [(lambda: TrainConfig(steps=0), 'steps'),
-                       (lambda: TrainConfig(method='cmaes'), 'method'),
+                       (lambda: TrainConfig(method='ppo'), 'method'),
                        (lambda: SapgaParams(n_pop=1), 'n_pop'),
                        (lambda: SapgaParams(style='telepathy'), 'style'),
                        (lambda: SapgaParams(l_min=30, l_max=20), 'l_min'),
@@ -126,7 +126,7 @@ def test_node_style_is_validated_and_applies_to_the_next_run(ros):
     assert node.set_parameters([Parameter('style', value='via-point')])[0].successful
     assert node.train_config().params.style == 'via-point'
     for name, value in [('style', 'telepathy'), ('n_pop', 1), ('chunk_steps', 10),
-                        ('log_period', math.nan), ('method', 'cmaes')]:
+                        ('log_period', math.nan), ('method', 'ppo')]:
         result = node.set_parameters([Parameter(name, value=value)])[0]
         assert not result.successful and name in result.reason, (name, result.reason)
     with pytest.raises(ConfigError, match='style'):

@@ -1,6 +1,6 @@
 """The ``sapga`` command: train, evaluate, benchmark, inspect exemplars and recordings.
 
-    sapga train --problem P [--method sapga|ql] [--delta D] [--steps N] [--seed S]
+    sapga train --problem P [--method sapga|ql|cmaes] [--delta D] [--steps N] [--seed S]
                 [--jobs J] [--out FILE] [--checkpoint DIR] [--resume] [--init FILE ...]
                 [--style S] [--pop N] [--children N] [--l-min N] [--l-max N] ...
     sapga eval POLICY [--delta D] [--max-steps N] [--json]

@@ -1,4 +1,5 @@
-"""Trainer node: SAP-GA (or the Q-learning baseline) offline, served over ROS 2 (SPEC 4).
+"""Trainer node: SAP-GA (or the Q-learning baseline, or CMA-ES) offline, served over ROS 2
+(SPEC 4).
 
 Training runs in a background thread through the one training loop (``training.loop.train``,
 with the fast batch evaluator), never over ROS topics; the node reports progress on
@@ -10,11 +11,11 @@ Parameters (msg_configs/params/trainer_node.yaml; docs/ros_interface.md has the 
 generated from the config dataclasses by ``sapga_ros.nodes.trainer_params`` -- the run's
 ``method``, ``steps``, ``seed``, ``jobs``, ``checkpoint_seconds``, ``checkpoint_every``,
 ``resume``, SAP-GA's ``n_pop``, ``n_child``, ``l_min``, ``l_max``, ``style``, Q-learning's
-``chunk_steps``, the node's ``out``, ``train_on_start``, ``policy_file``,
-``diagnostics_period``, ``log_period`` -- plus ``problem`` (read-only), ``delta`` and
-``checkpoint`` ('': ``<out without suffix>.ckpt`` beside ``out``, none without ``out``).
-``out`` and the checkpoint directory must be in existing folders (a run is refused
-otherwise).  A change applies to the next run.
+``chunk_steps``, CMA-ES's ``exemplars``, ``sigma0``, ``popsize``, the node's ``out``,
+``train_on_start``, ``policy_file``, ``diagnostics_period``, ``log_period`` -- plus
+``problem`` (read-only), ``delta`` and ``checkpoint`` ('': ``<out without suffix>.ckpt``
+beside ``out``, none without ``out``).  ``out`` and the checkpoint directory must be in
+existing folders (a run is refused otherwise).  A change applies to the next run.
 
 Services (std_srvs/Trigger):
 
@@ -63,7 +64,7 @@ JOIN_TIMEOUT_S = 120.0  # [s] shutdown waits this long for the run to stop and s
 STOP_WAIT_S = 60.0      # [s] the stop service waits this long for the round to end
 QL_NOT_SERVABLE = ('method ql learns a Q-table (sapga-qtable/1), not an exemplar policy: the '
                    'policy node cannot run it (evaluate the out file with `sapga eval`; '
-                   'train with method sapga to deploy)')
+                   'train with method sapga or cmaes to deploy)')
 
 
 @dataclass(frozen=True)
@@ -231,7 +232,7 @@ class TrainerNode(Node):
                          steps_per_s=0.0, generation=0, episodes=0, method=config.method,
                          seed=config.seed, message='training',
                          checkpoint=config.checkpoint or '')
-        final = self._serve if config.method == 'sapga' else lambda policy: None
+        final = self._serve if config.method != 'ql' else lambda policy: None
         hooks = RunHooks(best=self._serve, result=final, changed=self._set_status,
                          say=self._say,
                          log_period=lambda: self.get_parameter('log_period').value)

@@ -1,13 +1,13 @@
 """The trainer node's parameters, generated from the config dataclasses (SPEC 4).
 
 Every ``setting`` field (``sapga_ros.optim.settings``) of ``TrainConfig``, ``SapgaParams``,
-``QlParams`` and ``NodeSettings`` is a parameter of the same name, default and description,
-with its bounds as the descriptor's ``integer_range`` / ``floating_point_range`` (rclpy
-refuses values outside them) and its choices in ``additional_constraints``.  Written here
-are only the node's forms of three run fields: ``problem`` (read-only), ``delta`` (any
-number; < 0 or NaN: the problem's default) and ``checkpoint`` ('': ``<out without
-suffix>.ckpt`` beside ``out``; none without ``out``).  A change applies to the next run.
-"""
+``QlParams``, ``CmaesParams`` and ``NodeSettings`` is a parameter of the same name, default
+and description, with its bounds as the descriptor's ``integer_range`` /
+``floating_point_range`` (rclpy refuses values outside them) and its choices in
+``additional_constraints``.  Written here are only the node's forms of three run fields:
+``problem`` (read-only), ``delta`` (any number; < 0 or NaN: the problem's default) and
+``checkpoint`` ('': ``<out without suffix>.ckpt`` beside ``out``; none without ``out``).  A
+change applies to the next run."""
 from __future__ import annotations
 
 import math
@@ -18,6 +18,7 @@ from typing import Any, Callable
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 
 from sapga_ros.errors import ConfigError
+from sapga_ros.optim.cmaes import CmaesParams
 from sapga_ros.optim.qlearner import QlParams
 from sapga_ros.optim.sapga import SapgaParams
 from sapga_ros.optim.settings import Setting, build, described, kind_of, setting
@@ -45,7 +46,7 @@ OTHERS: dict[str, tuple[Any, str]] = {
                    '(none without out)'),
 }
 SETTINGS: dict[str, tuple[Field, Setting]] = {
-    f.name: (f, s) for cls in (TrainConfig, SapgaParams, QlParams, NodeSettings)
+    f.name: (f, s) for cls in (TrainConfig, SapgaParams, QlParams, CmaesParams, NodeSettings)
     for f, s in described(cls)}
 
 
@@ -100,4 +101,4 @@ def train_config(value: Callable[[str], Any], problem: str, delta: float) -> Tra
             raise ConfigError(f'{what} {path}: {Path(path).parent} is not an existing folder')
     return build(TrainConfig, value, problem=problem, delta=delta,
                  checkpoint=checkpoint or None, params=build(SapgaParams, value),
-                 ql=build(QlParams, value))
+                 ql=build(QlParams, value), cmaes=build(CmaesParams, value))

@@ -150,25 +150,20 @@ def run_seeds(exp: Experiment, seeds: list[int], steps: int) -> list[dict]:
     (``training.loop.train_lanes``), each bit-identical to its run alone: their
     ``steps_per_s`` is the lanes' MDP steps per second together (the worker's rate) and
     their ``seconds`` a share of the wall time in proportion to their steps."""
-    from sapga_ros.evaluation.evaluator import set_jobs
+    from sapga_ros.optim.cmaes import CmaesParams
     from sapga_ros.optim.sapga import SapgaParams
     from sapga_ros.training.loop import TrainConfig, train, train_lanes
     start = time.perf_counter()
-    if exp.method == 'cmaes':
-        from sapga_ros.optim.cmaes import train_cmaes
-        set_jobs(1)
-        done = [train_cmaes(exp.problem, exp.delta, steps, seed, popsize=CMAES_POP)
-                for seed in seeds]
+    configs = [TrainConfig(problem=exp.problem, method=exp.method, delta=exp.delta,
+                           steps=steps, seed=seed, jobs=1,
+                           params=SapgaParams(style=exp.style, variant=exp.variant),
+                           cmaes=CmaesParams(popsize=CMAES_POP))
+               for seed in seeds]
+    if exp.method == 'ql' and len(configs) > 1:
+        results = train_lanes(configs)
     else:
-        configs = [TrainConfig(problem=exp.problem, method=exp.method, delta=exp.delta,
-                               steps=steps, seed=seed, jobs=1,
-                               params=SapgaParams(style=exp.style, variant=exp.variant))
-                   for seed in seeds]
-        if exp.method == 'ql' and len(configs) > 1:
-            results = train_lanes(configs)
-        else:
-            results = [train(c) for c in configs]
-        done = [(r.policy, r.history) for r in results]
+        results = [train(c) for c in configs]
+    done = [(r.policy, r.history) for r in results]
     wall = max(time.perf_counter() - start, 1e-9)
     total = sum(hist[-1]['steps'] for _, hist in done)
     return [_run(exp, seed, policy, hist, wall, total, len(seeds))

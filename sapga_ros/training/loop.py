@@ -1,7 +1,7 @@
-"""One training run, top to bottom, for either method: optimizer, rounds, log, checkpoints.
+"""One training run, top to bottom, for any method: optimizer, rounds, log, checkpoints.
 
-``train(config)`` drives an optimizer of the contract ``sapga_ros.optim.base`` (SAP-GA, or
-the Q-learning baseline) until the MDP-step budget is spent (checked after each ask/tell
+``train(config)`` drives an optimizer of the contract ``sapga_ros.optim.base`` (SAP-GA,
+the Q-learning baseline or CMA-ES) until the MDP-step budget is spent (checked after each ask/tell
 round, so a run simulates at most one generation, or one episode, more) or ``should_stop()``
 says so: it evaluates what ``ask()`` hands out in one parallel batch, tells the measures,
 logs a progress row per round (the optimizer's counters, ``achieved``, ``steps_per_s``),
@@ -31,13 +31,14 @@ from sapga_ros.evaluation.evaluator import Evaluator, set_jobs
 from sapga_ros.policies.exemplar import ExemplarPolicy
 from sapga_ros.io.atomic import write_atomic
 from sapga_ros.optim.base import Optimizer
+from sapga_ros.optim.cmaes import Cmaes, CmaesParams
 from sapga_ros.optim.qlearner import QLearning, QlParams, learn_together
 from sapga_ros.optim.sapga import SapGA, SapgaParams
 from sapga_ros.optim.settings import check, setting
 from sapga_ros.training import checkpoints
 from sim_nodes.problem import Problem, load_problem
 
-METHODS: dict[str, type[Optimizer]] = {'sapga': SapGA, 'ql': QLearning}
+METHODS: dict[str, type[Optimizer]] = {'sapga': SapGA, 'ql': QLearning, 'cmaes': Cmaes}
 
 
 @dataclass(frozen=True)
@@ -46,7 +47,8 @@ class TrainConfig:
     node parameters alike)."""
 
     problem: str = 'acrobot'               # problem name (msg_configs/<problem>.yaml)
-    method: str = setting('sapga', 'sapga (SAP-GA) or ql (the tabular Q-learning baseline)',
+    method: str = setting('sapga', 'sapga (SAP-GA), ql (the tabular Q-learning baseline) or '
+                          'cmaes (CMA-ES over state-action exemplars)',
                           choices=tuple(METHODS))
     delta: float | None = None             # goal difficulty; None: the problem's default
     steps: int = setting(30_000_000, 'budget of MDP steps simulated', low=1)
@@ -61,6 +63,7 @@ class TrainConfig:
     resume: bool = setting(False, 'continue from the checkpoint in the checkpoint directory')
     params: SapgaParams = field(default_factory=SapgaParams)
     ql: QlParams = field(default_factory=QlParams)
+    cmaes: CmaesParams = field(default_factory=CmaesParams)
 
     def __post_init__(self) -> None:
         check(self)
@@ -92,19 +95,22 @@ def run_settings(config: TrainConfig, problem: Problem, delta: float) -> dict:
                            'seed': config.seed, **cls.settings(problem, method_params(config))})
 
 
-def method_params(config: TrainConfig) -> SapgaParams | QlParams:
+def method_params(config: TrainConfig) -> SapgaParams | QlParams | CmaesParams:
     """The strategy parameters of the run's method."""
-    return config.params if config.method == 'sapga' else config.ql
+    return {'sapga': config.params, 'ql': config.ql, 'cmaes': config.cmaes}[config.method]
 
 
 def _start(config: TrainConfig, problem: Problem, delta: float,
            initial: list[ExemplarPolicy]) -> tuple[Optimizer, list[dict]]:
     """A new optimizer, or the one of the checkpoint (with the log so far)."""
     if config.method != 'sapga' and initial:
-        raise ConfigError('initial policies seed a SAP-GA population; Q-learning takes none')
+        raise ConfigError(f'initial policies seed a SAP-GA population; {config.method} takes '
+                          f'none')
     if not config.resume:
         if config.method == 'sapga':
             return SapGA.create(problem, config.params, config.seed, initial), []
+        if config.method == 'cmaes':
+            return Cmaes.create(problem, config.cmaes, config.seed), []
         return QLearning.create(problem, config.ql, config.seed, delta, config.steps), []
     if not config.checkpoint:
         raise CheckpointError('--resume needs --checkpoint DIR')
