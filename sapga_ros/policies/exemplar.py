@@ -14,20 +14,24 @@ from __future__ import annotations
 import json
 import math
 import os
+from array import array
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterable
 
 import numpy as np
 
 from sapga_ros.errors import PolicyFileError, SapgaError
 from sapga_ros.io.atomic import write_atomic
-from sapga_ros.policies.jsonfile import (excerpt, finite, json_safe, meta_of, parse_json,
-                                         read_policy_bytes)
+from sapga_ros.policies.jsonfile import (as_text, excerpt, finite, json_safe, meta_of,
+                                         read_policy_text)
+from sapga_ros.policies.jsonstream import Bulk, complete, read_document
 from sapga_ros.policies.styles import STYLES, style_named
 from sim_nodes.problem import Problem, load_problem
 
 FORMAT = 'sapga-policy/1'
+BULK = frozenset({'exemplars'})            # read one exemplar at a time
+HEADER = ('format', 'problem', 'style', 'state_names', 'actions', 'exemplars')
 
 
 @dataclass
@@ -167,7 +171,9 @@ def policy_from_document(doc: Any, problem: str | Problem | None = None,
     """Validate a parsed policy document; ``problem`` (if given) must match its problem."""
     if not isinstance(doc, dict):
         raise PolicyFileError(f'{source}: expected a JSON object at the top level')
-    for key in ('format', 'problem', 'style', 'state_names', 'actions', 'exemplars'):
+    if any(key not in doc for key in HEADER):
+        complete(doc)                       # some come after the exemplars
+    for key in HEADER:
         if key not in doc:
             raise PolicyFileError(f'{source}: missing field {key!r}')
     if doc['format'] != FORMAT:
@@ -199,16 +205,17 @@ def policy_from_document(doc: Any, problem: str | Problem | None = None,
         raise PolicyFileError(f'{source}: actions: expected {list(prob.actions)} for '
                               f'{prob.name}, got {values}')
     exemplars = doc['exemplars']
-    if not isinstance(exemplars, list) or not exemplars:
-        raise PolicyFileError(f'{source}: exemplars: expected a non-empty list')
-    dim = prob.dim
-    count = len(exemplars)
-    states, states2 = np.empty((count, dim)), np.empty((count, dim))
-    acts = np.zeros(count, dtype=np.int64)
-    vals = np.zeros(count)
+    if isinstance(exemplars, Bulk) and exemplars.kind == 'array':
+        items: Iterable = exemplars.items()
+    elif isinstance(exemplars, list):
+        items = enumerate(exemplars)
+    else:
+        items = ()
+    states, states2, vals = array('d'), array('d'), array('d')
+    acts = array('q')
     index = {v: i for i, v in enumerate(values)}
     keys = spec.keys
-    for j, e in enumerate(exemplars):
+    for j, e in items:
         where = f'{source}: exemplars[{j}]'
         if not isinstance(e, dict) or any(k not in e for k in keys.values()):
             wanted = ', '.join(f'"{k}"' for k in keys.values())
@@ -216,36 +223,44 @@ def policy_from_document(doc: Any, problem: str | Problem | None = None,
                                   f'({spec.name} style)')
         for name, key in keys.items():
             if name in ('state', 'state2'):
-                _read_state(e[key], f'{where}.{key}', prob,
-                            states[j] if name == 'state' else states2[j])
+                (states if name == 'state' else states2).extend(
+                    _state(e[key], f'{where}.{key}', prob))
             elif name == 'action':
                 a = finite(e[key], f'{where}.{key}')
                 if a not in index:
                     raise PolicyFileError(f'{where}.{key}: {a} is not one of {values}')
-                acts[j] = index[a]
+                acts.append(index[a])
             else:
-                vals[j] = finite(e[key], f'{where}.{key}')
-    return ExemplarPolicy(prob, states, acts, meta=meta_of(doc, source), style=spec.name,
-                          values=vals, states2=states2 if spec.uses('state2') else None)
+                vals.append(finite(e[key], f'{where}.{key}'))
+    if not states:
+        raise PolicyFileError(f'{source}: exemplars: expected a non-empty list')
+    complete(doc)                           # the fields after the exemplars
+    column = lambda a, kind: np.frombuffer(a, dtype=kind) if a else None  # noqa: E731
+    return ExemplarPolicy(prob, column(states, np.float64), column(acts, np.int64),
+                          meta=meta_of(doc, source), style=spec.name,
+                          values=column(vals, np.float64),
+                          states2=column(states2, np.float64) if spec.uses('state2') else None)
 
 
-def _read_state(st: Any, where: str, prob: Problem, out: np.ndarray) -> None:
-    """Validate one state list of a policy file into ``out``."""
+def _state(st: Any, where: str, prob: Problem) -> list[float]:
+    """The coordinates of one state list of a policy file, validated."""
     dim = prob.dim
     if not isinstance(st, list) or len(st) != dim:
         got = len(st) if isinstance(st, list) else type(st).__name__
         raise PolicyFileError(f'{where}: expected {dim} numbers '
                               f'({", ".join(prob.state_names)}), got {got}')
-    for d, x in enumerate(st):
-        out[d] = finite(x, f'{where}[{d}] ({prob.state_names[d]})')
+    return [finite(x, f'{where}[{d}] ({prob.state_names[d]})') for d, x in enumerate(st)]
 
 
 def policy_from_json(text: str | bytes, problem: str | Problem | None = None,
                      source: str = 'policy') -> ExemplarPolicy:
-    """Parse and validate a policy document from its JSON text."""
-    return policy_from_document(parse_json(text, source), problem, source)
+    """Parse and validate a policy document from its JSON text (exemplars read one at a
+    time: ``sapga_ros.policies.jsonstream``)."""
+    return policy_from_document(read_document(as_text(text, source), source, BULK), problem,
+                                source)
 
 
 def load_policy(path: str | os.PathLike, problem: str | Problem | None = None) -> ExemplarPolicy:
     """Read and validate a policy file (size-checked before it is read)."""
-    return policy_from_json(read_policy_bytes(path), problem, str(path))
+    return policy_from_document(read_document(read_policy_text(path), str(path), BULK),
+                                problem, str(path))

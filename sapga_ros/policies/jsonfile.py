@@ -83,6 +83,11 @@ def read_policy_bytes(path: str | os.PathLike) -> bytes:
         raise PolicyFileError(f'{path}: cannot read ({exc.strerror or exc})') from exc
 
 
+def read_policy_text(path: str | os.PathLike) -> str:
+    """The text of a policy file (its bytes freed once decoded)."""
+    return as_text(read_policy_bytes(path), str(path))
+
+
 def as_text(data: str | bytes, source: str) -> str:
     """Policy file contents as text: at most the size limit, UTF-8."""
     if len(data) > MAX_POLICY_BYTES:

@@ -18,6 +18,7 @@ from sapga_ros.errors import PolicyFileError
 from sapga_ros.io.atomic import write_atomic
 from sapga_ros.policies.episode import Episode
 from sapga_ros.policies.jsonfile import excerpt, finite, json_safe, meta_of
+from sapga_ros.policies.jsonstream import Bulk, complete
 from sim_nodes.goal import goal_arrays, goal_delta
 from sim_nodes.jit import kernel
 from sim_nodes.models import model_id
@@ -25,6 +26,8 @@ from sim_nodes.models.dispatch import step_lanes
 from sim_nodes.problem import Problem, load_problem
 
 FORMAT = 'sapga-qtable/1'
+BULK = frozenset({'q'})                    # read one row at a time
+HEADER = ('problem', 'state_names', 'actions', 'state_indices', 'tiles_per_dim', 'q')
 
 
 @kernel(inline='always')
@@ -132,10 +135,13 @@ class QTable:
 
 
 def qtable_from_document(doc: dict, source: str) -> QTable:
-    """Validate a parsed ``sapga-qtable/1`` document."""
+    """Validate a parsed ``sapga-qtable/1`` document (its ``q`` a dict, or a ``Bulk`` read
+    one row at a time)."""
     if not isinstance(doc, dict):
         raise PolicyFileError(f'{source}: expected a JSON object at the top level')
-    for key in ('problem', 'state_names', 'actions', 'state_indices', 'tiles_per_dim', 'q'):
+    if any(key not in doc for key in HEADER):
+        complete(doc)                       # some come after the rows
+    for key in HEADER:
         if key not in doc:
             raise PolicyFileError(f'{source}: missing field {key!r}')
     try:
@@ -153,13 +159,15 @@ def qtable_from_document(doc: dict, source: str) -> QTable:
     cells = pr.ql_tiles_per_dim ** len(pr.ql_state_indices)
     q = np.zeros((cells, len(pr.actions)))
     visited = np.zeros(cells, dtype=np.bool_)
-    if not isinstance(doc['q'], dict):
+    rows = doc['q']
+    if not (isinstance(rows, dict) or isinstance(rows, Bulk) and rows.kind == 'object'):
         raise PolicyFileError(f'{source}: q: expected an object of cell: [values]')
-    for key, values in doc['q'].items():
+    for key, values in rows.items():
         if not (key.isascii() and key.isdigit()) or len(key) > 18 or int(key) >= cells:
             raise PolicyFileError(f'{source}: q: cell {excerpt(key)} is not in 0..{cells - 1}')
         if not isinstance(values, list) or len(values) != len(pr.actions):
             raise PolicyFileError(f'{source}: q[{key}]: expected {len(pr.actions)} numbers')
         q[int(key)] = [finite(v, f'{source}: q[{key}]') for v in values]
         visited[int(key)] = True
+    complete(doc)                           # the fields after the rows
     return QTable(pr, q, visited, meta_of(doc, source))
