@@ -25,7 +25,7 @@ from sapga_ros.errors import PolicyFileError, SapgaError
 from sapga_ros.io.atomic import write_atomic
 from sapga_ros.policies.jsonfile import (as_text, excerpt, finite, json_safe, meta_of,
                                          read_policy_text)
-from sapga_ros.policies.jsonstream import Bulk, complete, read_document
+from sapga_ros.policies.jsonstream import Bulk, complete, read_document, require
 from sapga_ros.policies.styles import STYLES, style_named
 from sim_nodes.problem import Problem, load_problem
 
@@ -169,13 +169,7 @@ def concat_policies(parts: list[ExemplarPolicy]) -> ExemplarPolicy:
 def policy_from_document(doc: Any, problem: str | Problem | None = None,
                          source: str = 'policy') -> ExemplarPolicy:
     """Validate a parsed policy document; ``problem`` (if given) must match its problem."""
-    if not isinstance(doc, dict):
-        raise PolicyFileError(f'{source}: expected a JSON object at the top level')
-    if any(key not in doc for key in HEADER):
-        complete(doc)                       # some come after the exemplars
-    for key in HEADER:
-        if key not in doc:
-            raise PolicyFileError(f'{source}: missing field {key!r}')
+    require(doc, HEADER, source)
     if doc['format'] != FORMAT:
         raise PolicyFileError(f'{source}: format: expected {FORMAT!r}, '
                               f'got {excerpt(doc["format"])}')

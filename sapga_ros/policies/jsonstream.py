@@ -129,12 +129,7 @@ class Bulk:
             if array:
                 key = index
             else:
-                _expect(text, pos, '"', 'Expecting property name enclosed in double quotes',
-                        source)
-                key, pos = _string(text, pos, source)
-                pos = _ws(text, pos)
-                _expect(text, pos, ':', 'Expecting \':\' delimiter', source)
-                pos = _ws(text, pos + 1)
+                key, pos = _key(text, pos, source)
             item, pos = _flat(text, pos)           # the common case, fast
             if pos < 0:
                 item, pos = value_at(text, -pos, MAX_ITEM_CHARS, f'{self.where}[{key}]',
@@ -170,11 +165,16 @@ def _flat(text: str, pos: int) -> tuple[Any, int]:
     return None, -pos
 
 
-def _string(text: str, pos: int, source: str) -> tuple[str, int]:
+def _key(text: str, pos: int, source: str) -> tuple[str, int]:
+    """(key, position of its value) of the ``"key": `` at ``pos``."""
+    _expect(text, pos, '"', 'Expecting property name enclosed in double quotes', source)
     try:
-        return json.decoder.scanstring(text, pos + 1)
+        key, pos = json.decoder.scanstring(text, pos + 1)
     except json.JSONDecodeError as exc:
         raise malformed(text, exc.pos, exc.msg, source) from None
+    pos = _ws(text, pos)
+    _expect(text, pos, ':', 'Expecting \':\' delimiter', source)
+    return key, _ws(text, pos + 1)
 
 
 class Document(dict):
@@ -207,12 +207,7 @@ class Document(dict):
                 pos = _ws(text, pos + 1)
                 if sep == '}':
                     break
-            _expect(text, pos, '"', 'Expecting property name enclosed in double quotes',
-                    source)
-            key, pos = _string(text, pos, source)
-            pos = _ws(text, pos)
-            _expect(text, pos, ':', 'Expecting \':\' delimiter', source)
-            pos = _ws(text, pos + 1)
+            key, pos = _key(text, pos, source)
             where = f'{source}: {key[:60]}'
             if key in self.bulk and text.startswith(('[', '{'), pos):
                 if isinstance(self.get(key), Bulk):
@@ -252,3 +247,16 @@ def read_document(text: str, source: str, bulk: frozenset[str] | set[str] = froz
 def complete(doc: dict) -> dict:
     """``doc`` with every field read (a parsed dict is complete already)."""
     return doc.complete() if isinstance(doc, Document) else doc
+
+
+def require(doc: Any, names: tuple[str, ...], source: str) -> dict:
+    """``doc``, an object with every field of ``names`` (read past its bulk field if some
+    come after it); else the error naming what is missing."""
+    if not isinstance(doc, dict):
+        raise PolicyFileError(f'{source}: expected a JSON object at the top level')
+    if any(name not in doc for name in names):
+        complete(doc)
+    for name in names:
+        if name not in doc:
+            raise PolicyFileError(f'{source}: missing field {name!r}')
+    return doc

@@ -18,7 +18,7 @@ from sapga_ros.errors import PolicyFileError
 from sapga_ros.io.atomic import write_atomic
 from sapga_ros.policies.episode import Episode
 from sapga_ros.policies.jsonfile import excerpt, finite, json_safe, meta_of
-from sapga_ros.policies.jsonstream import Bulk, complete
+from sapga_ros.policies.jsonstream import Bulk, complete, require
 from sim_nodes.goal import goal_arrays, goal_delta
 from sim_nodes.jit import kernel
 from sim_nodes.models import model_id
@@ -137,13 +137,7 @@ class QTable:
 def qtable_from_document(doc: dict, source: str) -> QTable:
     """Validate a parsed ``sapga-qtable/1`` document (its ``q`` a dict, or a ``Bulk`` read
     one row at a time)."""
-    if not isinstance(doc, dict):
-        raise PolicyFileError(f'{source}: expected a JSON object at the top level')
-    if any(key not in doc for key in HEADER):
-        complete(doc)                       # some come after the rows
-    for key in HEADER:
-        if key not in doc:
-            raise PolicyFileError(f'{source}: missing field {key!r}')
+    require(doc, HEADER, source)
     try:
         pr = load_problem(doc['problem'])
     except Exception as exc:  # noqa: BLE001 - reported as a policy file error
