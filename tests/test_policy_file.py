@@ -1,4 +1,4 @@
-"""The public policy file format sapga-policy/1 (exemplars/policy.py; SPEC 3.3): exact round
+"""The public policy file format sapga-policy/1 (policies/exemplar.py; SPEC 3.3): exact round
 trips, and hostile or inconsistent documents refused with a one-line PolicyFileError that
 names the field; plus the loading of sapga-qtable/1 documents (sapga_ros/policies/qtable.py)."""
 from __future__ import annotations
