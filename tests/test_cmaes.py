@@ -1,5 +1,6 @@
-"""The CMA-ES peer (``sapga_ros.optim.cmaes``): the decoding of a candidate, a short run that
-learns, determinism for a seed, and a recorded best value that its episode reproduces."""
+"""CMA-ES (``sapga_ros.optim.cmaes``) driven by the training loop: the decoding of a candidate,
+a short run that learns, determinism for a seed, a recorded best value that its episode
+reproduces, restarts, and checkpoints that re-derive pycma's state."""
 from __future__ import annotations
 
 import math
@@ -7,21 +8,34 @@ import math
 import numpy as np
 import pytest
 
-from sapga_ros.evaluation.evaluator import BatchResult, Evaluator
-from sapga_ros.optim.cmaes import CmaesParams, CmaesSearch, decode, genes, train_cmaes
+from sapga_ros.errors import ConfigError
+from sapga_ros.evaluation.evaluator import Evaluator
+from sapga_ros.optim.cmaes import Cmaes, CmaesParams, decode, genes
+from sapga_ros.training.loop import TrainConfig, train
 from sim_nodes.problem import load_problem
 
 BUDGET = 200_000
 
 
+def train_cmaes(problem: str, steps: int, seed: int, **params) -> tuple:
+    """(best policy, log) of a CMA-ES run through the training loop."""
+    r = train(TrainConfig(problem=problem, method='cmaes', steps=steps, seed=seed,
+                          cmaes=CmaesParams(**params)))
+    return r.policy, r.history
+
+
 @pytest.fixture(scope='module')
 def acrobot_run() -> tuple:
     """A CMA-ES run on the acrobot of BUDGET MDP steps, seed 11."""
-    return train_cmaes('acrobot', None, BUDGET, 11)
+    return train_cmaes('acrobot', BUDGET, 11)
 
 
 def without_timing(history: list[dict]) -> list[dict]:
     return [{k: v for k, v in row.items() if k != 'steps_per_s'} for row in history]
+
+
+def timeless(meta: dict) -> dict:
+    return {k: v for k, v in meta.items() if k != 'time'}
 
 
 def test_genes_decode_onto_the_state_bounds_and_the_action_indices(acrobot_problem):
@@ -75,52 +89,78 @@ def test_a_seed_gives_the_same_run_whatever_numpy_global_state():
     for global_seed in (1, 2):
         np.random.seed(global_seed)
         np.random.standard_normal(global_seed)
-        runs.append(train_cmaes('pendulum', None, 40_000, 5, exemplars=10))
+        runs.append(train_cmaes('pendulum', 40_000, 5, exemplars=10))
     (p1, h1), (p2, h2) = runs
     assert without_timing(h1) == without_timing(h2)
     assert np.array_equal(p1.states, p2.states) and np.array_equal(p1.actions, p2.actions)
-    assert p1.meta == p2.meta
-    p3, h3 = train_cmaes('pendulum', None, 40_000, 6, exemplars=10)
+    assert timeless(p1.meta) == timeless(p2.meta)
+    p3, h3 = train_cmaes('pendulum', 40_000, 6, exemplars=10)
     assert not np.array_equal(p1.states, p3.states)
 
 
 def test_seed_zero_is_a_seed_too():
     """Seed 0 (pycma's 'from the clock') is as deterministic as any other."""
-    a = train_cmaes('pendulum', None, 8_000, 0, exemplars=5, popsize=4)
-    b = train_cmaes('pendulum', None, 8_000, 0, exemplars=5, popsize=4)
-    assert np.array_equal(a[0].states, b[0].states) and a[0].meta == b[0].meta
+    a = train_cmaes('pendulum', 8_000, 0, exemplars=5, popsize=4)
+    b = train_cmaes('pendulum', 8_000, 0, exemplars=5, popsize=4)
+    assert np.array_equal(a[0].states, b[0].states) and timeless(a[0].meta) == timeless(b[0].meta)
+
+
+def flat_round(search: Cmaes) -> None:
+    """One generation in which every episode times out with the same return (flat
+    fitness)."""
+    n = len(search.ask())
+    search.tell(np.full(n, -400.0), np.full(n, 0.5), np.full(n, 400, np.int64),
+                np.zeros(n, np.bool_), [None] * n)
 
 
 def test_the_strategy_restarts_when_pycma_stops_before_the_budget():
     """Flat fitness (every episode times out, as on the mountain car at first) stops pycma;
     the next ask restarts from a fresh random mean and the search goes on."""
     problem = load_problem('mountain_car')
-    search = CmaesSearch(problem, CmaesParams(exemplars=5, popsize=6), 3)
+    search = Cmaes.create(problem, CmaesParams(exemplars=5, popsize=6), 3)
     mean0 = search.es.mean.copy()
     for _ in range(12):
-        policies = search.ask()
+        flat_round(search)
         if search.restarts:
             break
-        n = len(policies)
-        search.tell(policies, BatchResult(np.full(n, -400.0), np.full(n, 400, np.int64),
-                                          np.full(n, 0.5), np.zeros(n, np.bool_), [None] * n))
     assert search.restarts == 1 and search.generation >= 1
     assert not np.array_equal(search.es.mean, mean0)
     assert search.counters()['best_value'] == -400.0
 
 
+def test_a_checkpoint_across_a_restart_re_derives_the_strategy(tmp_path):
+    """A state saved after a restart replays to the same pycma state (mean, step size,
+    covariance) and generator, and both go on alike."""
+    problem = load_problem('mountain_car')
+    search = Cmaes.create(problem, CmaesParams(exemplars=5, popsize=6), 3)
+    while not search.restarts:
+        flat_round(search)
+    flat_round(search)
+    meta, arrays = search.state_dict()
+    again = Cmaes.from_state(problem, search.params, (meta, arrays))
+    assert again.restarts == search.restarts and again.generation == search.generation
+    for a, b in ((again.es.mean, search.es.mean), (again.es.C, search.es.C)):
+        assert np.array_equal(a, b)
+    assert again.es.sigma == search.es.sigma
+    assert again.counters() == search.counters()
+    xs = [np.array(o._ask_genes()) for o in (search, again)]
+    assert np.array_equal(*xs)
+
+
 def test_misuse_is_refused():
     """ask twice, tell without the last ask's results and bad settings raise."""
     problem = load_problem('pendulum')
-    search = CmaesSearch(problem, CmaesParams(exemplars=4, popsize=4), 1)
+    search = Cmaes.create(problem, CmaesParams(exemplars=4, popsize=4), 1)
     policies = search.ask()
     with pytest.raises(RuntimeError):
         search.ask()
-    result = Evaluator(problem).evaluate(policies[:2])
+    r = Evaluator(problem).evaluate(policies[:2])
     with pytest.raises(RuntimeError):
-        search.tell(policies[:2], result)
+        search.tell(r.returns, r.delta_star, r.steps, r.reached, r.used)
     with pytest.raises(RuntimeError):
-        CmaesSearch(problem, CmaesParams(exemplars=4), 1).result(0.01)
-    for kwargs in ({'exemplars': 0}, {'sigma0': 0.0}, {'sigma0': 2.0}, {'popsize': 1}):
-        with pytest.raises(ValueError):
+        search.state_dict()
+    assert Cmaes.create(problem, CmaesParams(exemplars=4), 1).result is None
+    for kwargs in ({'exemplars': 0}, {'sigma0': 0.0}, {'sigma0': 2.0}, {'popsize': 1},
+                   {'popsize': -3}, {'sigma0': math.nan}):
+        with pytest.raises(ConfigError):
             CmaesParams(**kwargs)

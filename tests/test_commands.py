@@ -17,7 +17,7 @@ from std_srvs.srv import Trigger
 
 from ros_helpers import Probe, isolated_ros
 from sapga_ros.evaluation.evaluator import Evaluator
-from sapga_ros.exemplars.policy import ExemplarPolicy
+from sapga_ros.policies.exemplar import ExemplarPolicy
 from sapga_ros.nodes.policy_node import PolicyNode
 from sim_nodes.models import model_module
 from sim_nodes.problem import load_problem

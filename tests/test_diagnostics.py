@@ -11,7 +11,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.node import Node
 
 from ros_helpers import isolated_ros
-from sapga_ros.exemplars.policy import ExemplarPolicy
+from sapga_ros.policies.exemplar import ExemplarPolicy
 from sapga_ros.nodes.policy_node import PolicyNode
 from sapga_ros.nodes.recorder_node import RecorderNode
 from sapga_ros.nodes.trainer_node import TrainerNode

@@ -12,8 +12,8 @@ import itertools
 import numpy as np
 
 from sapga_ros.evaluation.evaluator import Evaluator
-from sapga_ros.exemplars.policy import ExemplarPolicy
-from sapga_ros.optim.qlearning import QTable
+from sapga_ros.policies.exemplar import ExemplarPolicy
+from sapga_ros.policies.qtable import QTable
 from sim_nodes.problem import load_problem
 
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from sapga_ros.evaluation.evaluator import Evaluator, set_jobs
-from sapga_ros.exemplars.policy import ExemplarPolicy
+from sapga_ros.policies.exemplar import ExemplarPolicy
 from sim_nodes import reference
 from sim_nodes.goal import delta_of
 from sim_nodes.models import model_module

@@ -11,8 +11,8 @@ import threading
 import pytest
 
 from sapga_ros.errors import SapgaError
-from sapga_ros.evaluation.any_policy import load_any_policy
-from sapga_ros.exemplars.policy import load_policy
+from sapga_ros.policies.kinds import load_any_policy
+from sapga_ros.policies.runnable import load_policy
 from sapga_ros.io.atomic import process_umask, write_atomic
 from sim_nodes.errors import ConfigError
 from sim_nodes.problem import load_problem_file

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from sapga_ros.evaluation.evaluator import Evaluator
-from sapga_ros.exemplars.policy import ExemplarPolicy, load_policy
+from sapga_ros.policies.exemplar import ExemplarPolicy
+from sapga_ros.policies.runnable import load_policy
 from sim_nodes import reference
 from sim_nodes.errors import ConfigError
 from sim_nodes.problem import load_problem, parse_problem
@@ -240,5 +241,5 @@ def test_the_gym_env_runs_the_hold_task_like_the_engine(name):
 
 
 def classical_policy_of(problem):
-    from sapga_ros.policies.classical import classical_policy
+    from sapga_ros.evaluation.classical_design import classical_policy
     return classical_policy(problem)

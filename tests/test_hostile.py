@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from sapga_ros.errors import CheckpointError, PolicyFileError
-from sapga_ros.exemplars.policy import ExemplarPolicy, policy_from_json
+from sapga_ros.policies.exemplar import ExemplarPolicy
+from sapga_ros.policies.runnable import policy_from_json
 from sapga_ros.recording.events import parse_event
 from sapga_ros.optim.sapga import SapgaParams
 from sapga_ros.optim.population import pack, unpack

@@ -122,6 +122,16 @@ def test_a_killed_run_leaves_an_evaluable_policy_and_resumes_to_the_uninterrupte
     print(timings)
 
 
+def test_a_killed_cmaes_run_resumes_to_the_uninterrupted_result(tmp_path):
+    """`sapga train --method cmaes --problem acrobot --seed 0` SIGKILLed after its first save
+    leaves an evaluable policy, and `--resume` (pycma's state re-derived from the checkpoint)
+    finishes with the uninterrupted run's policy and log rows."""
+    timings = kill_and_resume(tmp_path, 400_000, [
+        '--method', 'cmaes', '--problem', 'acrobot', '--seed', '0', '--jobs', '1', '--quiet',
+        '--checkpoint-seconds', '1'], after=None)
+    print(timings)
+
+
 @pytest.mark.long
 def test_kill_9_of_a_60_million_step_pdip_run_after_40_s_loses_nothing_on_resume(tmp_path):
     """Issue 7's acceptance: `sapga train --problem pdip --steps 60000000` killed after 40 s

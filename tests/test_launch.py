@@ -21,7 +21,7 @@ from ros_helpers import executable, free_domain_id
 from sapga_ros.cli import main as cli
 from sapga_ros.launch import run_launch
 from sapga_ros.launch.supervisor import ChildExited, Supervisor, exit_code
-from sapga_ros.exemplars.policy import ExemplarPolicy
+from sapga_ros.policies.exemplar import ExemplarPolicy
 from sim_nodes.problem import load_problem
 
 LAUNCH_TIMEOUT_S = 150  # [s] bound on a whole launch: a failing test, not a timing check

@@ -14,7 +14,7 @@ import yaml
 
 from ros_helpers import executable, free_domain_id
 from sapga_ros import package_version, version_of_package_xml
-from sapga_ros.exemplars.policy import ExemplarPolicy
+from sapga_ros.policies.exemplar import ExemplarPolicy
 from sapga_ros.launch.prefix import MARKER, ensure_ament_prefix, own_prefixes
 from sapga_ros.launch.ros_args import RosOptions, namespace, remap, split_ros_args
 from sim_nodes.problem import load_problem

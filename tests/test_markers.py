@@ -12,7 +12,7 @@ from rclpy.parameter import Parameter
 from visualization_msgs.msg import Marker, MarkerArray
 
 from ros_helpers import PROBE_QOS, Probe, isolated_ros
-from sapga_ros.exemplars.policy import ExemplarPolicy
+from sapga_ros.policies.exemplar import ExemplarPolicy
 from sapga_ros.nodes.policy_node import PolicyNode
 from sim_nodes import geometry
 from sim_nodes.problem import load_problem

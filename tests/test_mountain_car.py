@@ -6,7 +6,7 @@ import numpy as np
 
 from sapga_ros.evaluation.evaluator import Evaluator
 from sapga_ros.viz.exemplar_plot import plot_exemplars, policy_map
-from sapga_ros.exemplars.policy import ExemplarPolicy
+from sapga_ros.policies.exemplar import ExemplarPolicy
 from sim_nodes import goal
 from sim_nodes.models.mountain_car import mdp_step
 from sim_nodes.problem import load_problem

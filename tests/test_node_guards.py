@@ -18,7 +18,7 @@ from std_msgs.msg import Float64, String
 from std_srvs.srv import Trigger
 
 from ros_helpers import PROBE_QOS, Probe, free_domain_id, new_node
-from sapga_ros.exemplars.policy import ExemplarPolicy
+from sapga_ros.policies.exemplar import ExemplarPolicy
 from sapga_ros.nodes.policy_node import PolicyNode
 from sapga_ros.nodes.recorder_node import RecorderNode
 from sim_nodes.problem import load_problem

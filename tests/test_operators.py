@@ -4,7 +4,7 @@ import pytest
 
 from sapga_ros.optim.operators import (deduplicate, random_exemplars, random_policy, refresh,
                                        uniform_crossover)
-from sapga_ros.exemplars.policy import ExemplarPolicy
+from sapga_ros.policies.exemplar import ExemplarPolicy
 from sim_nodes.problem import load_problem
 
 

@@ -1,5 +1,5 @@
-"""The optimizer contract (sapga_ros/optim/base.py) as SAP-GA and Q-learning keep it: ask /
-tell / stop / result, and a state_dict that continues a run to the identical result."""
+"""The optimizer contract (sapga_ros/optim/base.py) as SAP-GA, Q-learning and CMA-ES keep it:
+ask / tell / stop / result, and a state_dict that continues a run to the identical result."""
 from __future__ import annotations
 
 import json
@@ -10,6 +10,7 @@ import pytest
 from sapga_ros.errors import CheckpointError
 from sapga_ros.evaluation.evaluator import Evaluator
 from sapga_ros.optim.base import Optimizer
+from sapga_ros.optim.cmaes import Cmaes, CmaesParams
 from sapga_ros.optim.qlearner import QLearning, QlParams
 from sapga_ros.optim.sapga import SapGA, SapgaParams
 
@@ -20,6 +21,8 @@ BUDGET = 60_000
 def _make(method: str, problem) -> Optimizer:
     if method == 'sapga':
         return SapGA.create(problem, SapgaParams(n_pop=8, n_child=2, l_min=5, l_max=10), 4)
+    if method == 'cmaes':
+        return Cmaes.create(problem, CmaesParams(exemplars=6, popsize=6), 4)
     return QLearning.create(problem, QlParams(chunk_steps=10_000), 4, DELTA, BUDGET)
 
 
@@ -37,7 +40,7 @@ def _copy(state):
     return json.loads(json.dumps(meta)), {k: v.copy() for k, v in arrays.items()}
 
 
-@pytest.mark.parametrize('method', ['sapga', 'ql'])
+@pytest.mark.parametrize('method', ['sapga', 'ql', 'cmaes'])
 def test_ask_tell_until_stop_gives_a_result(method, acrobot_problem):
     """Rounds go on until stop(budget) names the budget; result is a policy with its
     measures, and the counters account for every step."""
@@ -53,7 +56,7 @@ def test_ask_tell_until_stop_gives_a_result(method, acrobot_problem):
     assert result.meta['run_delta_star'] == opt.counters()['delta_star']
 
 
-@pytest.mark.parametrize('method', ['sapga', 'ql'])
+@pytest.mark.parametrize('method', ['sapga', 'ql', 'cmaes'])
 def test_state_dict_continues_to_the_identical_result(method, acrobot_problem):
     """An optimizer restored from state_dict() (through JSON and copied arrays, as a
     checkpoint does) takes the same rounds as the one that goes on."""
@@ -70,10 +73,11 @@ def test_state_dict_continues_to_the_identical_result(method, acrobot_problem):
     assert first.counters() == second.counters()
     a, b = first.result, second.result
     assert a.meta['value'] == b.meta['value']
-    if method == 'sapga':
-        assert np.array_equal(a.policy.states, b.policy.states)
-    else:
+    if method == 'ql':
         assert np.array_equal(a.policy.q, b.policy.q)
+    else:
+        assert np.array_equal(a.policy.states, b.policy.states)
+        assert np.array_equal(a.policy.actions, b.policy.actions)
 
 
 @pytest.mark.parametrize('damage, needle', [
@@ -94,3 +98,25 @@ def test_a_damaged_q_learning_state_is_refused(damage, needle, acrobot_problem):
     with pytest.raises(CheckpointError, match=needle):
         QLearning.from_state(acrobot_problem, opt.params, (meta, arrays), delta=DELTA,
                              budget=BUDGET)
+
+
+@pytest.mark.parametrize('damage, needle', [
+    (lambda meta, arrays: arrays.update(told=arrays['told'][:, :-1]), 'told values'),
+    (lambda meta, arrays: arrays['told'].__setitem__((0, 0), np.nan), 'told fitness'),
+    (lambda meta, arrays: arrays.update(told=arrays['told'][:-1]), 'generator state'),
+    (lambda meta, arrays: arrays.update(best_x=arrays['best_x'][:-1]), 'best candidate'),
+    (lambda meta, arrays: meta.pop('rng'), 'malformed'),
+    (lambda meta, arrays: meta.update(seed='zero'), 'malformed'),
+])
+def test_a_damaged_cmaes_state_is_refused(damage, needle, acrobot_problem):
+    """A CMA-ES checkpoint whose recorded generations are misshapen, NaN, altered or cut
+    short (the replay then misses the saved generator state), whose best candidate is
+    misshapen or whose counters are missing is a CheckpointError naming what is wrong."""
+    opt = _make('cmaes', acrobot_problem)
+    evaluator = Evaluator(acrobot_problem, DELTA)
+    for _ in range(3):
+        _round(opt, evaluator)
+    meta, arrays = _copy(opt.state_dict())
+    damage(meta, arrays)
+    with pytest.raises(CheckpointError, match=needle):
+        Cmaes.from_state(acrobot_problem, opt.params, (meta, arrays))

@@ -20,8 +20,8 @@ from rclpy.parameter import Parameter
 
 from ros_helpers import isolated_ros
 from sapga_ros.errors import ConfigError
-from sapga_ros.evaluation.any_policy import policy_delta
-from sapga_ros.exemplars.policy import ExemplarPolicy
+from sapga_ros.policies.kinds import policy_delta
+from sapga_ros.policies.exemplar import ExemplarPolicy
 from sapga_ros.nodes.policy_node import PolicyNode
 from sapga_ros.nodes.policy_params import PARAMETERS as POLICY_PARAMETERS
 from sapga_ros.nodes.recorder_node import RecorderNode

@@ -1,6 +1,6 @@
-"""The public policy file format sapga-policy/1 (exemplars/policy.py; SPEC 3.3): exact round
+"""The public policy file format sapga-policy/1 (policies/exemplar.py; SPEC 3.3): exact round
 trips, and hostile or inconsistent documents refused with a one-line PolicyFileError that
-names the field; plus the loading of sapga-qtable/1 documents (sapga_ros/optim/qlearning.py)."""
+names the field; plus the loading of sapga-qtable/1 documents (sapga_ros/policies/qtable.py)."""
 from __future__ import annotations
 
 import json
@@ -9,11 +9,12 @@ from typing import Callable
 import numpy as np
 import pytest
 
-import sapga_ros.exemplars.policy as policy_module
+import sapga_ros.policies.exemplar as policy_module
 from sapga_ros.errors import PolicyFileError
-from sapga_ros.exemplars.policy import (FORMAT, MAX_POLICY_BYTES, ExemplarPolicy, load_policy,
-                                        policy_from_json)
-from sapga_ros.optim.qlearning import QTable, parse_json, qtable_from_document
+from sapga_ros.policies.exemplar import FORMAT, ExemplarPolicy
+from sapga_ros.policies.runnable import load_policy, policy_from_json
+from sapga_ros.policies.jsonfile import MAX_POLICY_BYTES, parse_json
+from sapga_ros.policies.qtable import QTable, qtable_from_document
 from sim_nodes.problem import load_problem
 
 META = {'value': -1210.5, 'delta_star': 0.013, 'seed': 0, 'steps': 30_000_000,

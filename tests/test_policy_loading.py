@@ -12,7 +12,7 @@ from rclpy.parameter import Parameter
 
 from ros_helpers import Probe, isolated_ros
 from sapga_ros.evaluation.state_selector import StateSelector
-from sapga_ros.exemplars.policy import ExemplarPolicy
+from sapga_ros.policies.exemplar import ExemplarPolicy
 from sapga_ros.nodes.policy_node import SYNC_BYTES, PolicyNode
 from sim_nodes.ros.common import JointStateLayout
 

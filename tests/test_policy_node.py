@@ -15,7 +15,7 @@ from std_srvs.srv import Trigger
 from ros_helpers import Probe, isolated_ros
 from sim_nodes.ros.common import JointStateLayout
 from sapga_ros.nodes.policy_node import PolicyNode
-from sapga_ros.exemplars.policy import ExemplarPolicy
+from sapga_ros.policies.exemplar import ExemplarPolicy
 from sapga_ros.exemplars.distance import distances
 from sim_nodes.problem import load_problem
 

@@ -106,7 +106,7 @@ def test_an_episode_of_nan_physics_never_reaches_the_goal():
     """Physics that gives nan (zero masses, let past the checks here) must not read as the
     goal reached by any evaluator: nan states are at delta infinity."""
     from sapga_ros.evaluation.evaluator import Evaluator
-    from sapga_ros.exemplars.policy import ExemplarPolicy
+    from sapga_ros.policies.exemplar import ExemplarPolicy
     good = load_problem('acrobot')
     bad = dataclasses.replace(good, physics={**good.physics, 'm1': 0.0, 'm2': 0.0,
                                              'I1': 0.0, 'I2': 0.0})

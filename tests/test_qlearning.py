@@ -3,7 +3,8 @@ import numpy as np
 import pytest
 
 from sapga_ros.errors import PolicyFileError
-from sapga_ros.optim.qlearning import QTable, parse_json, qtable_from_document
+from sapga_ros.policies.jsonfile import parse_json
+from sapga_ros.policies.qtable import QTable, qtable_from_document
 from ql_run import train_ql
 from sapga_ros.training.loop import TrainConfig
 from sim_nodes.problem import load_problem

@@ -13,7 +13,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
 from ros_helpers import PROBE_QOS, isolated_ros
-from sapga_ros.exemplars.policy import ExemplarPolicy
+from sapga_ros.policies.exemplar import ExemplarPolicy
 from sapga_ros.nodes.policy_node import PolicyNode
 from sim_nodes.problem import load_problem
 from sim_nodes.ros.common import EVENT_QOS, stamp_ns

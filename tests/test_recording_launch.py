@@ -29,8 +29,8 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
 from ros_helpers import executable, free_domain_id
-from sapga_ros.evaluation.any_policy import run_policy_episode
-from sapga_ros.exemplars.policy import ExemplarPolicy
+from sapga_ros.evaluation.evaluator import run_policy_episode
+from sapga_ros.policies.exemplar import ExemplarPolicy
 from sim_nodes.problem import load_problem
 from sim_nodes.ros.common import EVENT_QOS, JointStateLayout, spin_guarded
 from test_launch import launch, the_bag

@@ -118,7 +118,7 @@ def test_corrupt_checkpoint_is_refused_and_missing_one_named(tmp_path):
 def test_initial_exemplars_enter_the_population():
     """Hand-written exemplars given as prior knowledge are the first initial policies."""
     problem = load_problem('acrobot')
-    from sapga_ros.exemplars.policy import ExemplarPolicy
+    from sapga_ros.policies.exemplar import ExemplarPolicy
     prior = ExemplarPolicy(problem, [[problem.initial[0], 0.0, 0.0, 0.0]] * 1, [2])
     ga = SapGA.create(problem, SMALL, seed=0, initial=[prior])
     np.testing.assert_array_equal(ga.population[0].policy.states, prior.states)

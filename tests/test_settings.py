@@ -15,7 +15,7 @@ from ros_helpers import isolated_ros
 from sapga_ros.cli.main import build_parser
 from sapga_ros.cli.train import train_config
 from sapga_ros.errors import ConfigError
-from sapga_ros.exemplars.styles import STYLES
+from sapga_ros.policies.styles import STYLES
 from sapga_ros.nodes.trainer_node import TrainerNode
 from sapga_ros.nodes.trainer_params import PARAMETERS, NodeSettings
 from sapga_ros.optim.qlearner import QlParams
@@ -83,7 +83,7 @@ def test_cli_refuses_values_outside_the_bounds(argv, needle, capsys):
 def test_dataclasses_refuse_values_outside_the_bounds():
     """Constructing a config out of bounds is a ConfigError naming the field."""
     for make, name in [(lambda: TrainConfig(steps=0), 'steps'),
-                       (lambda: TrainConfig(method='telepathy'), 'method'),
+                       (lambda: TrainConfig(method='ppo'), 'method'),
                        (lambda: TrainConfig(delta=math.nan), 'delta'),
                        (lambda: TrainConfig(delta=-3.0), 'delta'),
                        (lambda: TrainConfig(delta=True), 'delta'),
@@ -137,7 +137,7 @@ def test_node_style_is_validated_and_applies_to_the_next_run(ros):
     assert node.set_parameters([Parameter('style', value='via-point')])[0].successful
     assert node.train_config().params.style == 'via-point'
     for name, value in [('style', 'telepathy'), ('n_pop', 1), ('chunk_steps', 10),
-                        ('log_period', math.nan), ('method', 'cmaes')]:
+                        ('log_period', math.nan), ('method', 'ppo')]:
         result = node.set_parameters([Parameter(name, value=value)])[0]
         assert not result.successful and name in result.reason, (name, result.reason)
     with pytest.raises(ConfigError, match='style'):

@@ -15,7 +15,7 @@ from std_srvs.srv import Trigger
 from ros_helpers import PROBE_QOS, Probe, isolated_ros, run_lockstep
 from sapga_ros.evaluation.evaluator import Evaluator
 from sim_nodes.ros.common import JointStateLayout
-from sapga_ros.exemplars.policy import ExemplarPolicy
+from sapga_ros.policies.exemplar import ExemplarPolicy
 from sim_nodes.models import model_module
 from sim_nodes.problem import load_problem
 from sim_nodes.ros.sim_node import SimNode

@@ -12,8 +12,8 @@ import pytest
 from sapga_ros.errors import PolicyFileError
 from sapga_ros.evaluation.evaluator import Evaluator
 from sapga_ros.evaluation.state_selector import StateSelector
-from sapga_ros.exemplars.policy import policy_from_json
-from sapga_ros.exemplars.styles import STYLES
+from sapga_ros.policies.runnable import policy_from_json
+from sapga_ros.policies.styles import STYLES
 from sapga_ros.optim.operators import random_exemplars, refresh, uniform_crossover
 from sim_nodes.models import model_module
 from sim_nodes.problem import load_problem

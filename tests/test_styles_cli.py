@@ -8,8 +8,8 @@ import json
 import pytest
 
 from sapga_ros.cli import main as cli
-from sapga_ros.exemplars.policy import load_policy
-from sapga_ros.exemplars.styles import STYLES
+from sapga_ros.policies.runnable import load_policy
+from sapga_ros.policies.styles import STYLES
 from test_launch import launch, recorded_episodes, sapga_eval_json, the_bag
 
 

@@ -8,7 +8,7 @@ import pytest
 
 from ros_helpers import isolated_ros, run_lockstep
 from sapga_ros.evaluation.evaluator import Evaluator
-from sapga_ros.exemplars.styles import STYLES
+from sapga_ros.policies.styles import STYLES
 from sapga_ros.optim.operators import random_exemplars
 from sim_nodes.problem import load_problem
 from sim_nodes.ros.common import JointStateLayout

@@ -20,7 +20,8 @@ from sapga_ros.errors import ConfigError
 from sapga_ros.evaluation.evaluator import Evaluator
 from sapga_ros.nodes.policy_node import PolicyNode
 from sapga_ros.nodes.trainer_node import TrainerNode
-from sapga_ros.exemplars.policy import ExemplarPolicy, load_policy, policy_from_json
+from sapga_ros.policies.exemplar import ExemplarPolicy
+from sapga_ros.policies.runnable import load_policy, policy_from_json
 from sapga_ros.optim.sapga import SapgaParams
 from sapga_ros.training.loop import TrainConfig, train_sapga
 from sim_nodes.problem import load_problem
@@ -200,10 +201,27 @@ def test_q_learning_runs_but_get_policy_says_a_q_table_is_not_served(ros, tmp_pa
     assert client.last()['method'] == 'ql' and int(client.last()['episodes']) > 0
 
 
+def test_cmaes_runs_and_its_best_policy_is_served(ros, tmp_path):
+    """A CMA-ES run (method cmaes, its strategy parameters as node parameters) writes its
+    best state-action policy and serves the same policy on get_policy."""
+    out = tmp_path / 'c.json'
+    client = ros.start(Client)
+    ros.start(TrainerNode, params={'method': 'cmaes', 'steps': 20_000, 'out': str(out),
+                                   'exemplars': 8, 'popsize': 6, 'train_on_start': True})
+    ros.wait_for(state_is(client, 'done'), 'the CMA-ES run to finish', timeout=60)
+    response = ros.call(client.get_policy, Trigger.Request())
+    assert response.success, response.message
+    served, saved = json.loads(response.message), json.loads(out.read_text())
+    assert served['meta']['method'] == 'cmaes' and served['meta']['steps'] >= 20_000
+    assert served['meta']['trainer'] == {'exemplars': 8, 'sigma0': 0.3, 'popsize': 6}
+    assert len(served['exemplars']) == 8 and served['exemplars'] == saved['exemplars']
+    assert client.last()['method'] == 'cmaes'
+
+
 def test_invalid_parameters_are_refused_with_the_reason(ros, tmp_path):
     """Bad settings fail at start or are refused with the reason; the node keeps serving."""
     with pytest.raises(ConfigError, match='method'):
-        ros.start(TrainerNode, params={'method': 'cmaes'})
+        ros.start(TrainerNode, params={'method': 'ppo'})
     for delta in (math.nan, -1.0):          # no sentinel: only a delta the run can use
         with pytest.raises(ConfigError, match=rf'delta: expected a number in \[0, 1e9\], '
                                               rf'got {delta}'):

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from sapga_ros.evaluation.evaluator import Evaluator
-from sapga_ros.exemplars.policy import ExemplarPolicy
+from sapga_ros.policies.exemplar import ExemplarPolicy
 from sim_nodes.models.registry import sim_executable
 from sim_nodes.problem import Problem, load_problem
 

@@ -49,7 +49,7 @@ def add_classical_arguments(parser: argparse.ArgumentParser) -> None:
 
 def cmd_classical(args) -> int:
     from sapga_ros.evaluation.evaluator import Evaluator
-    from sapga_ros.policies.classical import classical_policy
+    from sapga_ros.evaluation.classical_design import classical_policy
     from sim_nodes.problem import load_problem
     check_output_file(Path(args.out), '--out')
     problem = load_problem(args.problem)

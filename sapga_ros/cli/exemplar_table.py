@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sapga_ros.exemplars.policy import ExemplarPolicy
+from sapga_ros.policies.exemplar import ExemplarPolicy
 
 
 def exemplar_table(policy: ExemplarPolicy, counts: np.ndarray,

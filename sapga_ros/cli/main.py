@@ -1,6 +1,6 @@
 """The ``sapga`` command: train, evaluate, benchmark, inspect exemplars and recordings.
 
-    sapga train --problem P [--method sapga|ql] [--delta D] [--steps N] [--seed S]
+    sapga train --problem P [--method sapga|ql|cmaes] [--delta D] [--steps N] [--seed S]
                 [--jobs J] [--out FILE] [--checkpoint DIR] [--resume] [--init FILE ...]
                 [--style S] [--pop N] [--children N] [--l-min N] [--l-max N] ...
     sapga eval POLICY [--delta D] [--max-steps N] [--json]
@@ -38,7 +38,7 @@ from sapga_ros.cli.recordings import (add_bag_arguments, add_inspect_arguments, 
 from sapga_ros.cli.train import add_train_arguments, cmd_train
 from sapga_ros import package_version
 from sapga_ros.errors import SapgaError
-from sapga_ros.exemplars.styles import STYLES
+from sapga_ros.policies.styles import STYLES
 from sapga_ros.launch.prefix import ensure_ament_prefix
 from sim_nodes.params import DELTA
 
@@ -101,8 +101,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def cmd_eval(args) -> int:
-    from sapga_ros.evaluation.any_policy import (load_any_policy, policy_delta,
-                                                 run_policy_episode)
+    from sapga_ros.evaluation.evaluator import run_policy_episode
+    from sapga_ros.policies.kinds import load_any_policy, policy_delta
     policy = load_any_policy(args.policy)
     delta = policy_delta(policy, args.delta)
     ep = run_policy_episode(policy, delta, args.max_steps)
@@ -120,11 +120,12 @@ def cmd_eval(args) -> int:
 
 
 def cmd_exemplars(args) -> int:
-    from sapga_ros.evaluation.any_policy import policy_delta, run_policy_episode
     import numpy as np
 
     from sapga_ros.cli.exemplar_table import exemplar_table, format_table
-    from sapga_ros.exemplars.policy import load_policy
+    from sapga_ros.evaluation.evaluator import run_policy_episode
+    from sapga_ros.policies.runnable import load_policy
+    from sapga_ros.policies.kinds import policy_delta
     policy = load_policy(args.policy)
     delta = policy_delta(policy, args.delta)
     ep = run_policy_episode(policy, delta)

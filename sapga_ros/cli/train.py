@@ -1,8 +1,9 @@
-"""``sapga train``: one training run (SAP-GA or the Q-learning baseline) from the command line.
+"""``sapga train``: one training run (SAP-GA, the Q-learning baseline or CMA-ES) from the
+command line.
 
 Its options are the run's files (``--problem``, ``--out``, ``--checkpoint``, ``--init``,
 ``--quiet``) and, generated from the config dataclasses (``TrainConfig``, ``SapgaParams``,
-``QlParams``; defaults, help and bounds declared there), the run's settings;
+``QlParams``, ``CmaesParams``; defaults, help and bounds declared there), the run's settings;
 ``train_plan.py`` turns them into a run and its files (``--resume``: the checkpoint's
 settings).  The best policy so far, the log and the checkpoint are saved at least every
 ``--checkpoint-seconds`` (30 s), so a killed run loses at most that.  Ctrl-C or SIGTERM
@@ -19,12 +20,13 @@ import time
 from sapga_ros.cli.args import add_settings
 from sapga_ros.cli.train_plan import plan
 from sapga_ros.errors import SapgaError
+from sapga_ros.optim.cmaes import CmaesParams
 from sapga_ros.optim.qlearner import QlParams
 from sapga_ros.optim.sapga import SapgaParams
 from sapga_ros.training.loop import TrainConfig
 from sim_nodes.params import build
 
-SETTINGS = (TrainConfig, SapgaParams, QlParams)
+SETTINGS = (TrainConfig, SapgaParams, QlParams, CmaesParams)
 SIGNALS = {signal.SIGINT: 'Ctrl-C', signal.SIGTERM: 'SIGTERM'}
 
 
@@ -51,7 +53,8 @@ def train_config(args: argparse.Namespace, problem: str) -> TrainConfig:
     ``sapga train`` runs)."""
     value = lambda name: getattr(args, name)  # noqa: E731
     return build(TrainConfig, value, problem=problem, checkpoint=args.checkpoint,
-                 params=build(SapgaParams, value), ql=build(QlParams, value))
+                 params=build(SapgaParams, value), ql=build(QlParams, value),
+                 cmaes=build(CmaesParams, value))
 
 
 class _Progress:
@@ -85,7 +88,7 @@ class _Progress:
 
 
 def cmd_train(args: argparse.Namespace) -> int:
-    from sapga_ros.exemplars.policy import load_policy
+    from sapga_ros.policies.runnable import load_policy
     from sapga_ros.training.loop import train, write_log
     from sim_nodes.problem import load_problem
 
@@ -94,7 +97,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     problem = load_problem(config.problem)
     initial = [load_policy(f, problem) for f in args.init]
     if initial and config.method != 'sapga':
-        raise SapgaError('--init seeds a SAP-GA population; Q-learning takes none')
+        raise SapgaError(f'--init seeds a SAP-GA population; {config.method} takes none')
     for f, policy in zip(args.init, initial):
         if policy.style != config.params.style:
             raise SapgaError(f'{f}: a {policy.style} policy cannot seed a '

@@ -23,6 +23,7 @@ from typing import Any, Callable
 from sapga_ros.cli.args import check_output_dir, check_output_file
 from sapga_ros.errors import CheckpointError, ConfigError, SapgaError
 from sapga_ros.io.checkpoint import load_checkpoint_meta
+from sapga_ros.optim.cmaes import CmaesParams
 from sapga_ros.optim.qlearner import QlParams
 from sapga_ros.optim.sapga import SapgaParams
 from sapga_ros.training.checkpoints import flat
@@ -68,7 +69,7 @@ def plan(args: argparse.Namespace) -> Plan:
         raise SapgaError('--problem is required (only --resume takes it from the checkpoint)')
     try:
         config = build(TrainConfig, value, problem=problem, params=build(SapgaParams, value),
-                       ql=build(QlParams, value))
+                       ql=build(QlParams, value), cmaes=build(CmaesParams, value))
     except (ConfigError, TypeError) as exc:
         if not args.resume:
             raise

@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 from numba import prange
 
-from sapga_ros.policies.control import choose
+from sapga_ros.evaluation.control import choose
 from sim_nodes.goal import goal_delta
 from sim_nodes.jit import kernel
 from sim_nodes.models.dispatch import step_lanes
@@ -46,7 +46,7 @@ def run_share(model, style, ex, ex2, act, val, lengths, first, stop, s0, p, inv_
     (``held / (steps - first_entry + 1)`` is the hold fraction).  A step whose reward is
     below ``contact_below`` touched the end stop (``contacts``); ``fail_on_contact`` ends
     the episode there.  ``ctl[k]`` is policy k's controller
-    (``sapga_ros.policies.control``; one 0 column: none).
+    (``sapga_ros.evaluation.control``; one 0 column: none).
 
     ``dstar_alt`` is delta* under an alternative reading of the goal box (alt_inv_scale,
     alt_fixed; measured only, never ending an episode); empty alt arrays: not measured.

@@ -7,6 +7,7 @@ episode's accumulated reward; the evaluation is deterministic.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numba
 import numpy as np
@@ -14,8 +15,9 @@ import numpy as np
 from sapga_ros.errors import SapgaError
 from sapga_ros.evaluation.engine import BLOCKS_PER_THREAD, evaluate_batch, run_share
 from sapga_ros.exemplars.distance import normalize_states
-from sapga_ros.exemplars.policy import ExemplarPolicy
-from sapga_ros.exemplars.styles import STYLES
+from sapga_ros.policies.episode import Episode
+from sapga_ros.policies.exemplar import ExemplarPolicy
+from sapga_ros.policies.styles import STYLES
 from sim_nodes.models import model_id
 from sim_nodes.goal import alt_goal_arrays, goal_arrays, hold_measures
 from sim_nodes.problem import Problem
@@ -39,29 +41,6 @@ class BatchResult:
         """Policy k's hold measures (``hold_measures``)."""
         return hold_measures(int(self.first_entry[k]), int(self.held[k]), int(self.steps[k]),
                              int(self.contacts[k]))
-
-
-@dataclass(frozen=True)
-class Episode:
-    """One recorded episode."""
-
-    states: np.ndarray      # (steps + 1, D), initial state first
-    actions: np.ndarray     # (steps,) action values
-    exemplars: np.ndarray   # (steps,) index of the exemplar the selector reported (-1: none)
-    rewards: np.ndarray     # (steps,)
-    ret: float
-    steps: int
-    delta_star: float
-    reached: bool
-    used: np.ndarray | None = None  # (L,) exemplars referred to (exemplar policies)
-    first_entry: int = 0            # first step in S_delta, 0: never
-    held: int = 0                   # steps in S_delta from the first entry on
-    contacts: int = 0               # steps that touched the end stop
-
-    def summary(self) -> dict:
-        return {'return': self.ret, 'delta_star': self.delta_star, 'steps': self.steps,
-                'reached': self.reached,
-                **hold_measures(self.first_entry, self.held, self.steps, self.contacts)}
 
 
 def set_jobs(jobs: int | None) -> int:
@@ -103,7 +82,7 @@ class Evaluator:
                 *self.hold)
 
     def controls(self, policies) -> np.ndarray:
-        """(P, C) controller rows (``sapga_ros.policies.control``), zero-padded: a policy's
+        """(P, C) controller rows (``sapga_ros.evaluation.control``), zero-padded: a policy's
         own, else the evaluator's ``catch`` (None: no controller)."""
         rows = [getattr(p, 'control', self.catch) for p in policies]
         width = max([1] + [len(r) for r in rows if r is not None])
@@ -178,3 +157,11 @@ class Evaluator:
                        tr_reward[:n].copy(), float(returns[0]), n, float(dstar[0]),
                        bool(reached[0]), used[0, :len(policy)].copy(), int(first[0]),
                        int(held[0]), int(contacts[0]))
+
+
+def run_policy_episode(policy: Any, delta: float, max_steps: int | None = None) -> Episode:
+    """One recorded episode of a policy of any kind: an exemplar policy runs on the episode
+    engine, every other kind runs its own ``episode`` (``sapga_ros.policies.kinds``)."""
+    if isinstance(policy, ExemplarPolicy):
+        return Evaluator(policy.problem, delta, max_steps).episode(policy)
+    return policy.episode(delta, max_steps)

@@ -10,10 +10,10 @@ from __future__ import annotations
 import numpy as np
 
 from sapga_ros.evaluation.evaluator import Evaluator
-from sapga_ros.exemplars.policy import ExemplarPolicy
+from sapga_ros.evaluation.control import choose
 from sapga_ros.exemplars.selectors import scratch
-from sapga_ros.policies.control import choose
-from sapga_ros.exemplars.styles import STYLES
+from sapga_ros.policies.exemplar import ExemplarPolicy
+from sapga_ros.policies.styles import STYLES
 
 
 class StateSelector:

@@ -32,7 +32,7 @@ from sim_nodes.jit import kernel
 from sim_nodes.models.dispatch import step_lanes
 
 from sapga_ros.exemplars.distance import nearest, normalize_into, sq_distance, sq_distances
-from sapga_ros.exemplars.styles import STATE_ACTION, STATE_ACTION_VALUE, STATE_VALUE, VIA_POINT
+from sapga_ros.policies.styles import STATE_ACTION, STATE_ACTION_VALUE, STATE_VALUE, VIA_POINT
 
 
 @kernel

@@ -183,7 +183,7 @@ class DeployStack:
 
 def offline_episode(policy: Any, delta: float) -> dict:
     """The policy's offline evaluation (``sapga eval --json``): return, delta*, steps."""
-    from sapga_ros.evaluation.any_policy import run_policy_episode
+    from sapga_ros.evaluation.evaluator import run_policy_episode
     return run_policy_episode(policy, delta).summary()
 
 

@@ -44,7 +44,7 @@ from sapga_ros.launch.launch_node import LaunchRos
 from sapga_ros.launch.ros_args import RosOptions, add_ros_arguments
 from sapga_ros.launch.stack import (DeployStack, StackOptions, episode_lines,  # noqa: F401
                                     event_summary, offline_episode, same_episode)
-from sapga_ros.evaluation.any_policy import policy_delta
+from sapga_ros.policies.kinds import policy_delta
 from sim_nodes.options import add_param
 from sim_nodes.params import DELTA
 from sim_nodes.problem import load_problem
@@ -97,7 +97,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def run_swingup(args: argparse.Namespace, sup: Supervisor) -> SwingupResult:
     """The launch itself, under ``sup`` (which stops the nodes whatever happens)."""
-    from sapga_ros.exemplars.policy import load_policy
+    from sapga_ros.policies.runnable import load_policy
     problem = load_problem(args.problem) if args.problem else None
     policy = load_policy(Path(args.policy).resolve(), problem)   # checked before any start
     problem = policy.problem

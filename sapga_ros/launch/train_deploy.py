@@ -74,7 +74,7 @@ def add_run_arguments(p: argparse.ArgumentParser, **defaults: Any) -> None:
 
 def run_train_deploy(args: argparse.Namespace, sup: Supervisor) -> TrainDeployResult:
     """The launch itself, under ``sup`` (which stops the nodes whatever happens)."""
-    from sapga_ros.exemplars.policy import policy_from_json
+    from sapga_ros.policies.runnable import policy_from_json
     problem = load_problem(args.problem)
     out = Path(args.out).resolve()
     delta = problem.resolve('delta', args.delta)

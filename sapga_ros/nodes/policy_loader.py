@@ -24,7 +24,7 @@ from std_srvs.srv import Trigger
 
 from sapga_ros.errors import SapgaError
 from sapga_ros.evaluation.state_selector import StateSelector
-from sapga_ros.exemplars.policy import ExemplarPolicy
+from sapga_ros.policies.exemplar import ExemplarPolicy
 from sim_nodes.ros.common import one_line, steady_clock
 
 POLL_S = 0.02  # [s] how often a pending fetch checks for the service and its deadline

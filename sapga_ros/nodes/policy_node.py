@@ -46,7 +46,8 @@ from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
 from sapga_ros.errors import PolicyFileError, SapgaError
-from sapga_ros.exemplars.policy import MAX_POLICY_BYTES, load_policy, policy_from_json
+from sapga_ros.policies.runnable import load_policy, policy_from_json
+from sapga_ros.policies.jsonfile import MAX_POLICY_BYTES
 from sapga_ros.io.bounded import open_regular
 from sapga_ros.nodes.policy_loader import LoadResult, PolicyLoader, PreparedPolicy, fetch_text
 from sapga_ros.nodes.policy_params import PARAMETERS, check_setting

@@ -1,4 +1,4 @@
-"""Trainer node: SAP-GA (or the Q-learning baseline) offline, served over ROS 2.
+"""Trainer node: SAP-GA (or the Q-learning baseline, or CMA-ES) offline, served over ROS 2.
 
 Training runs in a background thread through the one training loop (``training.loop.train``,
 with the fast batch evaluator), never over ROS topics; the node reports progress on
@@ -10,8 +10,9 @@ Parameters (msg_configs/params/trainer_node.yaml; docs/ros_interface.md has the 
 the declarations of the config dataclasses (``sapga_ros.nodes.trainer_params``) -- the
 run's ``method``, ``delta`` (default: the problem's ``episode.delta``), ``steps``, ``seed``,
 ``jobs``, ``checkpoint_seconds``, ``checkpoint_every``, ``resume``, SAP-GA's ``n_pop``,
-``n_child``, ``l_min``, ``l_max``, ``style``, ``variant``, Q-learning's ``chunk_steps``, the
-node's ``out``, ``train_on_start``, ``policy_file``, ``diagnostics_period``,
+``n_child``, ``l_min``, ``l_max``, ``style``, ``variant``, Q-learning's ``chunk_steps``,
+CMA-ES's ``exemplars``, ``sigma0``, ``popsize``, the node's ``out``, ``train_on_start``,
+``policy_file``, ``diagnostics_period``,
 ``log_period`` -- plus ``problem`` (read-only) and ``checkpoint`` ('': ``<out without
 suffix>.ckpt`` beside ``out``, none without ``out``).
 ``out`` and the checkpoint directory must be in existing folders (a run is refused
@@ -59,8 +60,9 @@ from std_srvs.srv import Trigger
 
 from sapga_ros.errors import ConfigError, SapgaError
 from sim_nodes.ros.common import run_node, steady_clock
-from sapga_ros.exemplars.policy import ExemplarPolicy, load_policy
 from sapga_ros.nodes.trainer_params import PARAMETERS, check_setting, train_config
+from sapga_ros.policies.exemplar import ExemplarPolicy
+from sapga_ros.policies.runnable import load_policy
 from sapga_ros.nodes.trainer_run import RunHooks, TrainingRun
 from sapga_ros.nodes.trainer_status import RunStatus, diagnostics
 from sapga_ros.training.loop import TrainConfig
@@ -74,7 +76,7 @@ SERVICE_QOS = QoSProfile(depth=1000)    # requests queued at most (reliable, vol
 SERVICE_THREADS = 4     # executor threads: stops that wait for the round leave the others
 QL_NOT_SERVABLE = ('method ql learns a Q-table (sapga-qtable/1), not an exemplar policy: the '
                    'policy node cannot run it (evaluate the out file with `sapga eval`; '
-                   'train with method sapga to deploy)')
+                   'train with method sapga or cmaes to deploy)')
 
 
 @dataclass(frozen=True)
@@ -251,7 +253,7 @@ class TrainerNode(Node):
                          steps_per_s=0.0, generation=0, episodes=0, method=config.method,
                          seed=config.seed, message='training',
                          checkpoint=config.checkpoint or '')
-        final = self._serve if config.method == 'sapga' else lambda policy: None
+        final = self._serve if config.method != 'ql' else lambda policy: None
         hooks = RunHooks(best=self._serve, result=final, changed=self._set_status,
                          say=self._say,
                          log_period=lambda: self.get_parameter('log_period').value)

@@ -1,7 +1,8 @@
 """The trainer node's parameters, from the config dataclasses' declarations.
 
-Every parameter of ``TrainConfig``, ``SapgaParams``, ``QlParams`` and ``NodeSettings``
-(``sim_nodes.params``) is a parameter of the same name, default, range and description;
+Every parameter of ``TrainConfig``, ``SapgaParams``, ``QlParams``, ``CmaesParams`` and
+``NodeSettings`` (``sim_nodes.params``) is a parameter of the same name, default, range and
+description;
 ``delta`` is declared as the problem's ``episode.delta`` unless given.  Written here are only
 the node's own two: ``problem`` (read-only) and ``checkpoint`` ('': ``<out without
 suffix>.ckpt`` beside ``out``; none without ``out``).  A change applies to the next run.
@@ -13,6 +14,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from sapga_ros.errors import ConfigError
+from sapga_ros.optim.cmaes import CmaesParams
 from sapga_ros.optim.qlearner import QlParams
 from sapga_ros.optim.sapga import SapgaParams
 from sapga_ros.training.loop import TrainConfig
@@ -37,8 +39,8 @@ class NodeSettings:
 PROBLEM = Param('problem', 'acrobot', 'msg_configs/<problem>.yaml', read_only=True)
 CHECKPOINT = Param('checkpoint', '', 'checkpoint directory; empty: <out without suffix>.ckpt '
                    'beside out (none without out)')
-PARAMETERS = (PROBLEM, *(p for cls in (TrainConfig, SapgaParams, QlParams, NodeSettings)
-                         for p in declared(cls)), CHECKPOINT)
+SOURCES = (TrainConfig, SapgaParams, QlParams, CmaesParams, NodeSettings)
+PARAMETERS = (PROBLEM, *(p for cls in SOURCES for p in declared(cls)), CHECKPOINT)
 
 
 def check_setting(name: str, value: Any) -> str | None:
@@ -58,4 +60,5 @@ def train_config(value: Callable[[str], Any], problem: str) -> TrainConfig:
         if path and not Path(path).parent.is_dir():
             raise ConfigError(f'{what} {path}: {Path(path).parent} is not an existing folder')
     return build(TrainConfig, value, problem=problem, checkpoint=checkpoint or None,
-                 params=build(SapgaParams, value), ql=build(QlParams, value))
+                 params=build(SapgaParams, value), ql=build(QlParams, value),
+                 cmaes=build(CmaesParams, value))

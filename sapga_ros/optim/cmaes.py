@@ -1,12 +1,13 @@
-"""CMA-ES (Hansen's pycma) over a fixed-size state-action policy: a peer of SAP-GA on the
-same problems, episode engine and budget (MDP steps simulated).
+"""CMA-ES (Hansen's pycma) over a fixed-size state-action policy, behind the optimizer contract
+(``sapga_ros.optim.base``): a peer of SAP-GA on the same problems, episode engine and budget
+(MDP steps simulated), driven by the one training loop (``sapga train --method cmaes``).
 
 A candidate is a vector of L (D + 1) genes in [0, 1] (pycma's ``bounds=[0, 1]``), one row
 of D + 1 per exemplar: D state genes mapped linearly onto [low, high] of the problem's
 state coordinates and one action gene mapped to the action index
 ``min(floor(gene * n_actions), n_actions - 1)``.  It decodes to a state-action
-``ExemplarPolicy``; its fitness is the return of one episode (``Evaluator.evaluate``, the
-whole population in one parallel batch), and pycma minimises -return (NaN ranks worst).
+``ExemplarPolicy``; its fitness is the return of one episode (the loop evaluates the whole
+population in one parallel batch), and pycma minimises -return (NaN ranks worst).
 
 Randomness comes from one ``numpy.random.Generator`` seeded with ``seed``: the initial mean
 (uniform in [0, 1]) and pycma's normal draws (its ``randn`` option; pycma's ``seed`` option
@@ -14,37 +15,43 @@ would seed NumPy's global generator, which any other code may draw from, and tre
 "from the clock").  A run is deterministic for a seed.  When pycma's own termination
 criteria fire before the budget is spent (flat fitness: every episode of the mountain car
 times out), the strategy restarts from a fresh random mean, as pycma's ``fmin`` restarts.
+
+A checkpoint holds no pycma object (that would need pickle): it holds the fitness values
+told in every generation (``told``), the best candidate's genes and the counters.  Resuming
+re-derives the strategy: a fresh one from the seed, then ask/tell replayed with the recorded
+values, which redraws the same normal vectors from the same generator and so rebuilds
+pycma's mean, step size, covariance, paths and termination history exactly, restarts
+included; the generator state the replay reaches must equal the saved one.
 """
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import asdict, dataclass
-from typing import Any, Callable
 
 import cma
 import numpy as np
 
-from sapga_ros.evaluation.evaluator import BatchResult, Evaluator
-from sapga_ros.exemplars.policy import ExemplarPolicy
-from sim_nodes.problem import Problem, load_problem
-
-Progress = Callable[[dict[str, Any]], None]
+from sapga_ros.errors import CheckpointError, ConfigError
+from sapga_ros.optim.base import Optimizer, Result, State
+from sapga_ros.optim.settings import check, setting
+from sapga_ros.policies.exemplar import ExemplarPolicy
+from sim_nodes.problem import Problem
 
 
 @dataclass(frozen=True)
 class CmaesParams:
-    """Strategy parameters of the CMA-ES peer."""
+    """Strategy parameters of CMA-ES."""
 
-    exemplars: int = 50                    # L, exemplars of every policy
-    sigma0: float = 0.3                    # initial step size, in gene units ([0, 1])
-    popsize: int | None = None             # lambda; None: pycma's 4 + 3 ln(N)
+    exemplars: int = setting(50, 'CMA-ES: L, exemplars of every policy', low=1, high=100_000)
+    sigma0: float = setting(0.3, 'CMA-ES: initial step size, in gene units (each gene is in '
+                            '[0, 1])', low=1e-12, high=1.0)
+    popsize: int = setting(0, 'CMA-ES: lambda, candidates per generation; 0: pycma\'s '
+                           '4 + 3 ln N', low=0, high=1_000_000)
 
     def __post_init__(self) -> None:
-        if self.exemplars < 1 or not 0.0 < self.sigma0 <= 1.0 or \
-                (self.popsize is not None and self.popsize < 2):
-            raise ValueError(f'CMA-ES needs exemplars >= 1, 0 < sigma0 <= 1 and popsize >= 2 '
-                             f'or None, got {self}')
+        check(self)
+        if self.popsize == 1:
+            raise ConfigError('popsize: expected 0 (pycma\'s default) or at least 2, got 1')
 
 
 def genes(problem: Problem, exemplars: int) -> int:
@@ -61,18 +68,18 @@ def decode(problem: Problem, x: np.ndarray, exemplars: int) -> ExemplarPolicy:
     return ExemplarPolicy(problem, states, actions, style='state-action')
 
 
-@dataclass
+@dataclass(frozen=True)
 class Best:
-    """The best evaluated policy so far and its episode's measures."""
+    """The best evaluated candidate so far (its genes) and its episode's measures."""
 
-    policy: ExemplarPolicy
+    x: np.ndarray
     value: float
     delta_star: float
     steps: int
     reached: bool
 
 
-class CmaesSearch:
+class Cmaes(Optimizer):
     """ask / tell of pycma's ``CMAEvolutionStrategy`` on state-action policies."""
 
     method = 'cmaes'
@@ -83,13 +90,19 @@ class CmaesSearch:
         self.seed = int(seed)
         self.rng = np.random.default_rng(self.seed)
         self.generation = 0
-        self.steps = 0                     # MDP steps simulated (the budget's unit)
+        self._steps = 0                    # MDP steps simulated (the budget's unit)
         self.evaluations = 0
         self.restarts = 0
         self.delta_star = math.inf         # min delta(s) over every state reached
-        self.best: Best | None = None
+        self._best: Best | None = None
+        self._told: list[np.ndarray] = []  # the fitness values told, one row a generation
         self.es = self._strategy()
         self._asked: list | None = None
+
+    @classmethod
+    def create(cls, problem: Problem, params: CmaesParams, seed: int) -> 'Cmaes':
+        """A strategy from a random mean drawn from ``seed``'s generator."""
+        return cls(problem, params, seed)
 
     def _strategy(self) -> cma.CMAEvolutionStrategy:
         """A fresh strategy from a random mean, its normal draws from ``self.rng``."""
@@ -97,81 +110,128 @@ class CmaesSearch:
         x0 = self.rng.uniform(0.0, 1.0, genes(self.problem, p.exemplars))
         opts = {'bounds': [0.0, 1.0], 'randn': self._randn, 'seed': math.nan,
                 'verbose': -9, 'verb_log': 0, 'verb_disp': 0}
-        if p.popsize is not None:
+        if p.popsize:
             opts['popsize'] = p.popsize
         return cma.CMAEvolutionStrategy(x0, p.sigma0, opts)
 
     def _randn(self, *shape: int) -> np.ndarray:
         return self.rng.standard_normal(shape)
 
-    def ask(self) -> list[ExemplarPolicy]:
-        """This generation's candidates as policies (restarting first if pycma stopped)."""
+    def _ask_genes(self) -> list[np.ndarray]:
+        """This generation's candidate vectors (restarting first if pycma stopped)."""
         if self._asked is not None:
             raise RuntimeError('ask() called twice without tell()')
         if self.es.stop():
             self.restarts += 1
             self.es = self._strategy()
         self._asked = self.es.ask()
-        return [decode(self.problem, x, self.params.exemplars) for x in self._asked]
+        return self._asked
 
-    def tell(self, policies: list[ExemplarPolicy], result: BatchResult) -> None:
-        """The evaluations of ``ask()``'s policies, in order."""
-        if self._asked is None or not len(policies) == len(self._asked) == len(result.returns):
-            raise RuntimeError('tell() needs the results of the last ask(), in order')
-        values = np.where(np.isfinite(result.returns), result.returns, -np.inf)
-        self.es.tell(self._asked, [float(-v) for v in values])   # pycma minimises
+    def _tell_fitness(self, fitness: np.ndarray) -> None:
+        """pycma's tell of the last asked vectors (fitness: -return, minimised)."""
+        self.es.tell(self._asked, [float(f) for f in fitness])
+        self._told.append(np.asarray(fitness, dtype=np.float64))
         self._asked = None
         self.generation += 1
-        self.steps += int(result.steps.sum())
-        self.evaluations += len(policies)
-        self.delta_star = min(self.delta_star, float(result.delta_star.min()))
-        k = int(np.argmax(values))                                # first of equals
-        if self.best is None or values[k] > self.best.value:
-            self.best = Best(policies[k], float(values[k]), float(result.delta_star[k]),
-                             int(result.steps[k]), bool(result.reached[k]))
 
-    def counters(self) -> dict[str, Any]:
+    def ask(self) -> list[ExemplarPolicy]:
+        """This generation's candidates as policies."""
+        return [decode(self.problem, x, self.params.exemplars) for x in self._ask_genes()]
+
+    def tell(self, returns: np.ndarray, delta_star: np.ndarray, steps: np.ndarray,
+             reached: np.ndarray, used: list[np.ndarray]) -> None:
+        """The measures of ``ask()``'s candidates, in order."""
+        if self._asked is None or len(returns) != len(self._asked):
+            raise RuntimeError('tell() needs the results of the last ask(), in order')
+        values = np.where(np.isfinite(returns), returns, -np.inf)
+        asked = self._asked
+        self._tell_fitness(-values)
+        self._steps += int(np.sum(steps))
+        self.evaluations += len(values)
+        self.delta_star = min(self.delta_star, float(np.min(delta_star)))
+        k = int(np.argmax(values))                                # first of equals
+        if self._best is None or values[k] > self._best.value:
+            self._best = Best(np.array(asked[k]), float(values[k]), float(delta_star[k]),
+                              int(steps[k]), bool(reached[k]))
+
+    @property
+    def steps(self) -> int:
+        return self._steps
+
+    @property
+    def iteration(self) -> int:
+        return self.generation
+
+    @property
+    def best(self) -> Best | None:
+        return self._best
+
+    @property
+    def result(self) -> Result | None:
+        b = self._best
+        if b is None:
+            return None
+        return Result(decode(self.problem, b.x, self.params.exemplars), {
+            'value': b.value, 'delta_star': b.delta_star, 'steps_to_end': b.steps,
+            'reached': b.reached, 'run_delta_star': self.delta_star, 'steps': self._steps,
+            'generations': self.generation, 'evaluations': self.evaluations,
+            'restarts': self.restarts, 'method': self.method, 'trainer': asdict(self.params)})
+
+    def counters(self) -> dict:
         """A log row's counters (the SAP-GA log's columns first)."""
-        return {'generation': self.generation, 'steps': self.steps,
-                'best_value': self.best.value if self.best else -math.inf,
+        return {'generation': self.generation, 'steps': self._steps,
+                'best_value': self._best.value if self._best else -math.inf,
                 'delta_star': self.delta_star, 'evaluations': self.evaluations,
                 'restarts': self.restarts, 'sigma': float(self.es.sigma)}
 
-    def result(self, delta: float) -> ExemplarPolicy:
-        """The best policy so far, its account of itself and of the run in ``meta``."""
-        if self.best is None:
-            raise RuntimeError('no evaluation yet: no policy to return')
-        b = self.best
-        policy = b.policy.subset(slice(None))
-        policy.meta = {'value': b.value, 'delta_star': b.delta_star, 'steps_to_end': b.steps,
-                       'reached': b.reached, 'run_delta_star': self.delta_star,
-                       'steps': self.steps, 'generations': self.generation,
-                       'evaluations': self.evaluations, 'restarts': self.restarts,
-                       'delta': delta, 'seed': self.seed, 'method': self.method,
-                       'trainer': asdict(self.params)}
-        return policy
+    @staticmethod
+    def settings(problem: Problem, params: CmaesParams) -> dict:
+        return {'cmaes': asdict(params)}
 
+    def state_dict(self) -> State:
+        if self._asked is not None:
+            raise RuntimeError('candidates are asked but not yet told')
+        b = self._best
+        told = np.array(self._told) if self._told else np.empty((0, 0))
+        meta = {'seed': self.seed, 'steps': self._steps, 'evaluations': self.evaluations,
+                'delta_star': self.delta_star, 'rng': self.rng.bit_generator.state,
+                'best': None if b is None else {'value': b.value, 'delta_star': b.delta_star,
+                                                'steps': b.steps, 'reached': b.reached}}
+        arrays = {'told': told}
+        if b is not None:
+            arrays['best_x'] = b.x
+        return meta, arrays
 
-def train_cmaes(problem_name: str, delta: float | None, steps: int, seed: int,
-                exemplars: int = 50, sigma0: float = 0.3, popsize: int | None = None,
-                progress: Progress | None = None) -> tuple[ExemplarPolicy, list[dict]]:
-    """Run CMA-ES on ``problem_name`` until ``steps`` MDP steps are simulated (the
-    generation that crosses the budget completes, as in SAP-GA); return the best policy
-    (its ``meta``: value, delta_star, run_delta_star, steps, seed, method) and the log, one
-    row per generation (``progress(row)`` is called with each)."""
-    problem = load_problem(problem_name)
-    delta = problem.resolve('delta', delta)
-    evaluator = Evaluator(problem, delta)
-    search = CmaesSearch(problem, CmaesParams(exemplars, sigma0, popsize), seed)
-    history: list[dict] = []
-    start = time.perf_counter()
-    while search.steps < steps:
-        policies = search.ask()
-        search.tell(policies, evaluator.evaluate(policies))
-        row = search.counters()
-        row.update(achieved=row['delta_star'] <= delta,
-                   steps_per_s=search.steps / max(time.perf_counter() - start, 1e-9))
-        history.append(row)
-        if progress:
-            progress(row)
-    return search.result(delta), history
+    @classmethod
+    def from_state(cls, problem: Problem, params: CmaesParams, state: State,
+                   **run: object) -> 'Cmaes':
+        """The strategy re-derived by replaying the recorded generations (see the module)."""
+        meta, arrays = state
+        try:
+            opt = cls(problem, params, int(meta['seed']))
+            told, best = arrays['told'], meta['best']
+            counters = (int(meta['steps']), int(meta['evaluations']),
+                        float(meta['delta_star']))
+            rng = meta['rng']
+        except (KeyError, TypeError, ValueError) as exc:
+            raise CheckpointError(f'malformed run state ({exc})') from exc
+        if told.dtype != np.float64 or told.ndim != 2 or np.isnan(told).any():
+            raise CheckpointError(f'told fitness of the wrong form ({told.dtype}, '
+                                  f'{told.ndim} dimensions, or NaN)')
+        for row in told:
+            if len(opt._ask_genes()) != len(row):
+                raise CheckpointError(f'a generation of {len(row)} told values, expected '
+                                      f'{len(opt._asked)}')
+            opt._tell_fitness(row)
+        if opt.rng.bit_generator.state != rng:
+            raise CheckpointError('the replayed generations do not reach the saved generator '
+                                  'state')
+        opt._steps, opt.evaluations, opt.delta_star = counters
+        if best is not None:
+            x = arrays.get('best_x')
+            if x is None or x.dtype != np.float64 or x.shape != (genes(problem,
+                                                                       params.exemplars),):
+                raise CheckpointError('best candidate missing or of the wrong form')
+            opt._best = Best(x, float(best['value']), float(best['delta_star']),
+                             int(best['steps']), bool(best['reached']))
+        return opt

@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from sapga_ros.exemplars.policy import ExemplarPolicy, concat_policies
-from sapga_ros.exemplars.styles import style_named
+from sapga_ros.policies.exemplar import ExemplarPolicy, concat_policies
+from sapga_ros.policies.styles import style_named
 from sim_nodes.problem import Problem
 
 

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sapga_ros.errors import CheckpointError, SapgaError
-from sapga_ros.exemplars.policy import ExemplarPolicy
+from sapga_ros.policies.exemplar import ExemplarPolicy
 from sim_nodes.problem import Problem
 
 

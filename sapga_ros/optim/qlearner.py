@@ -16,7 +16,8 @@ import numpy as np
 
 from sapga_ros.errors import CheckpointError
 from sapga_ros.optim.base import Optimizer, Result, State
-from sapga_ros.optim.qlearning import QTable, learn
+from sapga_ros.optim.qlearning import learn
+from sapga_ros.policies.qtable import QTable
 from sim_nodes.params import check, param
 from sim_nodes.goal import alt_goal_arrays, goal_arrays
 from sim_nodes.models import model_id

@@ -19,8 +19,8 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from sapga_ros.errors import CheckpointError, ConfigError
-from sapga_ros.exemplars.policy import ExemplarPolicy
-from sapga_ros.exemplars.styles import STYLES
+from sapga_ros.policies.exemplar import ExemplarPolicy
+from sapga_ros.policies.styles import STYLES
 from sapga_ros.optim.base import Optimizer, Result, State
 from sapga_ros.optim.operators import (parents_union, random_policy, refresh,
                                        uniform_crossover)

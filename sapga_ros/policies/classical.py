@@ -14,7 +14,7 @@ A hybrid (exemplars + catch) is an ordinary exemplar policy document with one mo
 every number finite, every shape checked, the law and gain names known; the error names
 the field.  In memory both are ``ControlledPolicy``: an ``ExemplarPolicy`` (no exemplars for
 the classical kind) with its packed controller row ``control``
-(``sapga_ros.policies.control``), so the episode engine, the traced episode and the policy
+(``sapga_ros.evaluation.control``), so the episode engine, the traced episode and the policy
 node run them like any exemplar policy.
 """
 from __future__ import annotations
@@ -25,11 +25,10 @@ from typing import Any
 
 import numpy as np
 
-from sapga_ros.errors import PolicyFileError, SapgaError
-from sapga_ros.exemplars.policy import (FORMAT, ExemplarPolicy, _check_finite_tree, _finite,
-                                        document_problem, json_safe)
-from sapga_ros.policies import control as C
-from sapga_ros.policies.lqr import regulator
+from sapga_ros.errors import PolicyFileError
+from sapga_ros.policies.exemplar import FORMAT, ExemplarPolicy, document_problem
+from sapga_ros.policies.jsonfile import check_finite_tree, finite, json_safe
+from sapga_ros.policies import controller_row as C
 from sim_nodes.problem import Problem
 
 KIND = 'classical'
@@ -69,7 +68,7 @@ class ControlledPolicy(ExemplarPolicy):
 
     @property
     def control(self) -> np.ndarray:
-        """The packed controller row ``sapga_ros.policies.control.choose`` takes."""
+        """The packed controller row ``sapga_ros.evaluation.control.choose`` takes."""
         dim = self.problem.dim
         row = np.zeros(C.HEAD + dim + dim * dim)
         row[C.MODE] = C.CLASSICAL if self.kind == KIND else C.CATCH
@@ -119,29 +118,6 @@ def swing_constants(problem: Problem, kind: int, gains: list[float]) -> list[flo
             g * (m1 * l1 + m2 * l2), *gains, float(first)]
 
 
-def classical_policy(problem: Problem, gains: dict | None = None, c: float | None = None,
-                     effort: float | None = None) -> ControlledPolicy:
-    """The LQR about the upright state behind the model's energy swing-up (``DESIGNS``;
-    ``gains``, ``c`` and ``effort`` override the design's)."""
-    design = DESIGNS.get(problem.model)
-    if design is None:
-        raise SapgaError(f'{problem.name}: no classical design for model {problem.model!r} '
-                         f'(known: {", ".join(DESIGNS)})')
-    reg = regulator(problem, design.effort if effort is None else effort)
-    names = LAWS[design.law][1]
-    g = dict(zip(names, design.gains))
-    for name, value in (gains or {}).items():
-        if name not in g:
-            raise SapgaError(f'unknown gain {name!r} of {design.law} (known: {", ".join(g)})')
-        g[name] = float(value)
-    policy = ControlledPolicy(problem, np.zeros((0, problem.dim)), kind=KIND, K=reg.K,
-                              P=reg.P, c=0.0 if c is None else c, law=design.law, gains=g,
-                              meta={'controller': 'LQR + energy swing-up'})
-    if c is None:
-        policy.c = design.basin_margin * basin_c(policy, problem.default_delta)
-    return policy
-
-
 def with_catch(policy: ExemplarPolicy, catch: ControlledPolicy) -> ControlledPolicy:
     """``policy`` handing over to the LQR of ``catch`` inside its x'Px <= c."""
     return ControlledPolicy(policy.problem, policy.states, policy.actions, policy.meta,
@@ -153,7 +129,7 @@ def with_catch(policy: ExemplarPolicy, catch: ControlledPolicy) -> ControlledPol
 def _vector(value: Any, length: int, where: str) -> np.ndarray:
     if not isinstance(value, list) or len(value) != length:
         raise PolicyFileError(f'{where}: expected a list of {length} numbers')
-    return np.array([_finite(v, f'{where}[{i}]') for i, v in enumerate(value)])
+    return np.array([finite(v, f'{where}[{i}]') for i, v in enumerate(value)])
 
 
 def _controller(doc: Any, problem: Problem, where: str, classical: bool) -> dict:
@@ -168,7 +144,7 @@ def _controller(doc: Any, problem: Problem, where: str, classical: bool) -> dict
     if not isinstance(rows, list) or len(rows) != dim:
         raise PolicyFileError(f'{where}.P: expected {dim} rows of {dim} numbers')
     P = np.array([_vector(r, dim, f'{where}.P[{i}]') for i, r in enumerate(rows)])
-    c = _finite(doc['c'], f'{where}.c')
+    c = finite(doc['c'], f'{where}.c')
     if c < 0:
         raise PolicyFileError(f'{where}.c: expected a number >= 0, got {c}')
     out = {'K': K, 'P': P, 'c': c}
@@ -186,7 +162,7 @@ def _swing_up(doc: Any, where: str) -> dict:
     if not isinstance(gains, dict) or sorted(gains) != sorted(names):
         raise PolicyFileError(f'{where}.gains: expected an object with {", ".join(names)}')
     return {'law': doc['law'],
-            'gains': {n: _finite(gains[n], f'{where}.gains.{n}') for n in names}}
+            'gains': {n: finite(gains[n], f'{where}.gains.{n}') for n in names}}
 
 
 def classical_from_document(doc: dict, problem: str | Problem | None,
@@ -200,7 +176,7 @@ def classical_from_document(doc: dict, problem: str | Problem | None,
         raise PolicyFileError(f'{source}: state_names: expected {list(prob.state_names)}')
     actions = doc['actions']
     if not isinstance(actions, list) or \
-            [_finite(a, f'{source}: actions') for a in actions] != list(prob.actions):
+            [finite(a, f'{source}: actions') for a in actions] != list(prob.actions):
         raise PolicyFileError(f'{source}: actions: expected {list(prob.actions)}')
     design = DESIGNS.get(prob.model)
     ctl = _controller(doc['controller'], prob, f'{source}: controller', True)
@@ -210,7 +186,7 @@ def classical_from_document(doc: dict, problem: str | Problem | None,
     meta = doc.get('meta', {})
     if not isinstance(meta, dict):
         raise PolicyFileError(f'{source}: meta: expected an object')
-    _check_finite_tree(meta, f'{source}: meta')
+    check_finite_tree(meta, f'{source}: meta')
     return ControlledPolicy(prob, np.zeros((0, prob.dim)), meta=meta, kind=KIND, **ctl)
 
 
@@ -220,39 +196,3 @@ def attach_catch(policy: ExemplarPolicy, doc: Any, source: str) -> ControlledPol
     return ControlledPolicy(policy.problem, policy.states, policy.actions, policy.meta,
                             policy.style, policy.values,
                             policy.states2 if policy.states2.shape[1] else None, **ctl)
-
-
-def basin_c(policy: ControlledPolicy, delta: float, samples: int = 24, steps: int = 200,
-            seed: int = 0) -> float:
-    """The largest c of a halving ladder (from the ellipsoid inside S_1) such that the
-    quantised LQR, started from ``samples`` states on x'Px = c, ends every episode of
-    ``steps`` steps with its second half in S_delta: an empirical catch region
-    (deterministic in ``seed``)."""
-    import dataclasses
-
-    from sapga_ros.evaluation.evaluator import Evaluator
-    from sapga_ros.policies.lqr import half_widths, inscribed_c
-    from sim_nodes.goal import delta_of
-    pr = policy.problem
-    rng = np.random.default_rng(seed)
-    directions = rng.normal(size=(samples, pr.dim)) * half_widths(pr)
-    quad = np.einsum('ki,ij,kj->k', directions, policy.P, directions)
-    unit = directions / np.sqrt(quad)[:, None]        # x'Px = 1
-    c = inscribed_c(policy.P, pr, 1.0)
-    probe = ControlledPolicy(pr, np.zeros((0, pr.dim)), kind=KIND, K=policy.K, P=policy.P,
-                             c=np.inf, law=policy.law, gains=policy.gains)
-    for _ in range(40):
-        ok = True
-        for x in unit * np.sqrt(c):
-            start = dataclasses.replace(pr, initial=tuple(pr.best_state + x), n_step=steps)
-            probe.problem = start
-            ep = Evaluator(start, delta).episode(probe)
-            tail = ep.states[steps // 2:]
-            if ep.steps < steps or ep.contacts or \
-                    max(delta_of(pr, s) for s in tail) > delta:
-                ok = False
-                break
-        if ok:
-            return c
-        c /= 2.0
-    return 0.0

@@ -10,7 +10,7 @@ from typing import Any
 import yaml
 
 from sapga_ros.errors import ConfigError, UnknownProblemError
-from sapga_ros.exemplars.styles import STYLES
+from sapga_ros.policies.styles import STYLES
 from sapga_ros.io.bounded import load_yaml, read_bounded
 from sim_nodes.goal import alternative_goal
 from sim_nodes.jit import compile_seconds
@@ -207,22 +207,17 @@ def run_seeds(exp: Experiment, seeds: list[int], steps: int) -> list[dict]:
     ``steps_per_s`` is the lanes' MDP steps per second together (the worker's rate) and
     their ``seconds`` a share of the wall time in proportion to their steps (time spent
     compiling kernels left out of both)."""
-    from sapga_ros.evaluation.evaluator import set_jobs
+    from sapga_ros.optim.cmaes import CmaesParams
     from sapga_ros.optim.sapga import SapgaParams
     from sapga_ros.training.loop import TrainConfig, train, train_lanes
     start, compiled = time.perf_counter(), compile_seconds()
     if exp.method == 'classical':       # deterministic: the same controller every seed
         done = [_classical(exp) for _ in seeds]
-    elif exp.method == 'cmaes':
-        from sapga_ros.optim.cmaes import train_cmaes
-        set_jobs(1)
-        done = [train_cmaes(exp.problem, exp.delta, steps, seed, popsize=CMAES_POP)
-                for seed in seeds]
     else:
         configs = [TrainConfig(problem=exp.problem, method=exp.method, delta=exp.delta,
                                steps=steps, seed=seed, jobs=1,
                                params=SapgaParams(style=exp.style, variant=exp.variant),
-                               catch=exp.catch)
+                               cmaes=CmaesParams(popsize=CMAES_POP), catch=exp.catch)
                    for seed in seeds]
         if exp.method == 'ql' and len(configs) > 1:
             results = train_lanes(configs)
@@ -263,7 +258,7 @@ def _classical(exp: Experiment) -> tuple[Any, list[dict]]:
     """The classical controller of ``exp.problem`` and a one-row log (no search: 0 steps
     beyond its one evaluated episode)."""
     from sapga_ros.evaluation.evaluator import Evaluator
-    from sapga_ros.policies.classical import classical_policy
+    from sapga_ros.evaluation.classical_design import classical_policy
     problem = load_problem(exp.problem)
     policy = classical_policy(problem)
     ep = Evaluator(problem, exp.delta).episode(policy)

@@ -1,7 +1,7 @@
-"""One training run, top to bottom, for either method: optimizer, rounds, log, checkpoints.
+"""One training run, top to bottom, for any method: optimizer, rounds, log, checkpoints.
 
-``train(config)`` drives an optimizer of the contract ``sapga_ros.optim.base`` (SAP-GA, or
-the Q-learning baseline) until the MDP-step budget is spent (checked after each ask/tell
+``train(config)`` drives an optimizer of the contract ``sapga_ros.optim.base`` (SAP-GA,
+the Q-learning baseline or CMA-ES) until the MDP-step budget is spent (checked after each ask/tell
 round, so a run simulates at most one generation, or one episode, more) or ``should_stop()``
 says so: it evaluates what ``ask()`` hands out in one parallel batch, tells the measures,
 logs a progress row per round (the optimizer's counters, ``achieved``, ``steps_per_s``, time
@@ -29,9 +29,10 @@ import numpy as np
 from sapga_ros import __version__
 from sapga_ros.errors import CheckpointError, ConfigError
 from sapga_ros.evaluation.evaluator import Evaluator, set_jobs
-from sapga_ros.exemplars.policy import ExemplarPolicy
+from sapga_ros.policies.exemplar import ExemplarPolicy
 from sapga_ros.io.atomic import write_atomic
 from sapga_ros.optim.base import Optimizer
+from sapga_ros.optim.cmaes import Cmaes, CmaesParams
 from sapga_ros.optim.qlearner import QLearning, QlParams, learn_together
 from sapga_ros.optim.sapga import SapGA, SapgaParams
 from sapga_ros.training import checkpoints
@@ -39,7 +40,7 @@ from sim_nodes.jit import compile_seconds
 from sim_nodes.params import DELTA, check, param
 from sim_nodes.problem import Problem, load_problem
 
-METHODS: dict[str, type[Optimizer]] = {'sapga': SapGA, 'ql': QLearning}
+METHODS: dict[str, type[Optimizer]] = {'sapga': SapGA, 'ql': QLearning, 'cmaes': Cmaes}
 
 
 @dataclass(frozen=True)
@@ -48,8 +49,8 @@ class TrainConfig:
     node parameters alike; ``delta`` None: the problem's)."""
 
     problem: str = 'acrobot'               # problem name (msg_configs/<problem>.yaml)
-    method: str = param('sapga', 'sapga (SAP-GA) or ql (the tabular Q-learning baseline)',
-                        choices=tuple(METHODS))
+    method: str = param('sapga', 'sapga (SAP-GA), ql (the tabular Q-learning baseline) or '
+                        'cmaes (CMA-ES over state-action exemplars)', choices=tuple(METHODS))
     delta: float | None = param(DELTA)
     steps: int = param(30_000_000, 'budget of MDP steps simulated', low=1)
     seed: int = param(0, 'seed of every random choice of the run', low=0)
@@ -66,6 +67,7 @@ class TrainConfig:
                        choices=('none', 'lqr'))
     params: SapgaParams = field(default_factory=SapgaParams)
     ql: QlParams = field(default_factory=QlParams)
+    cmaes: CmaesParams = field(default_factory=CmaesParams)
 
     def __post_init__(self) -> None:
         check(self)
@@ -97,19 +99,22 @@ def run_settings(config: TrainConfig, problem: Problem, delta: float) -> dict:
                            'seed': config.seed, **cls.settings(problem, method_params(config))})
 
 
-def method_params(config: TrainConfig) -> SapgaParams | QlParams:
+def method_params(config: TrainConfig) -> SapgaParams | QlParams | CmaesParams:
     """The strategy parameters of the run's method."""
-    return config.params if config.method == 'sapga' else config.ql
+    return {'sapga': config.params, 'ql': config.ql, 'cmaes': config.cmaes}[config.method]
 
 
 def _start(config: TrainConfig, problem: Problem, delta: float,
            initial: list[ExemplarPolicy]) -> tuple[Optimizer, list[dict]]:
     """A new optimizer, or the one of the checkpoint (with the log so far)."""
     if config.method != 'sapga' and initial:
-        raise ConfigError('initial policies seed a SAP-GA population; Q-learning takes none')
+        raise ConfigError(f'initial policies seed a SAP-GA population; {config.method} takes '
+                          f'none')
     if not config.resume:
         if config.method == 'sapga':
             return SapGA.create(problem, config.params, config.seed, initial), []
+        if config.method == 'cmaes':
+            return Cmaes.create(problem, config.cmaes, config.seed), []
         return QLearning.create(problem, config.ql, config.seed, delta, config.steps), []
     if not config.checkpoint:
         raise CheckpointError('--resume needs --checkpoint DIR')
@@ -202,7 +207,8 @@ def _rounds(config: TrainConfig, initial: list[ExemplarPolicy] = (),
     if config.catch == 'lqr':
         if config.method != 'sapga':
             raise ConfigError('--catch lqr hands exemplar policies over to the LQR: SAP-GA only')
-        from sapga_ros.policies.classical import classical_policy, with_catch
+        from sapga_ros.evaluation.classical_design import classical_policy
+        from sapga_ros.policies.classical import with_catch
         catch = with_catch(ExemplarPolicy(problem, np.zeros((0, problem.dim))),
                            classical_policy(problem))
         evaluator.catch = catch.control
@@ -255,7 +261,7 @@ def _rounds(config: TrainConfig, initial: list[ExemplarPolicy] = (),
 def hold_of(policy: Any, delta: float) -> dict:
     """The hold measures of ``policy``'s episode (first_entry_step, hold_fraction,
     rail_contacts)."""
-    from sapga_ros.evaluation.any_policy import run_policy_episode
+    from sapga_ros.evaluation.evaluator import run_policy_episode
     summary = run_policy_episode(policy, delta).summary()
     return {k: summary[k] for k in HOLD_KEYS}
 

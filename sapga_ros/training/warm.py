@@ -18,7 +18,7 @@ import numpy as np
 from sapga_ros.analysis.limit import beam_limit
 from sapga_ros.evaluation.evaluator import Evaluator
 from sapga_ros.evaluation.state_selector import StateSelector
-from sapga_ros.exemplars.styles import STYLES
+from sapga_ros.policies.styles import STYLES
 from sapga_ros.optim.operators import random_policy
 from sapga_ros.optim.qlearner import QlParams
 from sapga_ros.optim.sapga import SapgaParams

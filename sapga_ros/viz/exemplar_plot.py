@@ -12,7 +12,7 @@ import numpy as np
 
 from sapga_ros.io.atomic import save_figure_file
 from sapga_ros.evaluation.state_selector import StateSelector
-from sapga_ros.exemplars.policy import ExemplarPolicy
+from sapga_ros.policies.exemplar import ExemplarPolicy
 from sapga_ros.viz.episode_plot import break_wraps
 
 COLOURS = ('tab:blue', 'tab:grey', 'tab:red', 'tab:green', 'tab:orange')

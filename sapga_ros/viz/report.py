@@ -16,8 +16,8 @@ import numpy as np
 from sapga_ros.errors import SapgaError
 from sapga_ros.evaluation.evaluator import Evaluator
 from sapga_ros.analysis.limit_file import delta_text, read_limit
-from sapga_ros.exemplars.policy import policy_from_document
 from sapga_ros.io.atomic import save_figure, write_atomic
+from sapga_ros.policies.runnable import policy_from_document
 from sapga_ros.training.report_files import read_info, read_summary
 from sapga_ros.training.run_files import read_run, run_path
 
@@ -134,7 +134,7 @@ def figure5(out: Path) -> list[str]:
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
 
-    from sapga_ros.optim.qlearning import cell_index, greedy
+    from sapga_ros.policies.qtable import cell_index, greedy
     from sapga_ros.training.loop import TrainConfig, train
     from sapga_ros.viz.exemplar_plot import policy_map
     runs = {m: train(TrainConfig(problem='mountain_car', method=m, steps=FIG5_STEPS, seed=0))

@@ -14,7 +14,8 @@ controller action is the problem's action nearest to the continuous command (tie
 lowest index): the quantisation a real actuator set imposes.  The reported exemplar index
 of a controller step is -1.
 
-``ctl`` (float64) layout: [mode, c, swing-up kind, NG swing-up constants, K (D), P (D*D)].
+``ctl`` (float64, ``sapga_ros.policies.controller_row``) layout: [mode, c, swing-up kind,
+NG swing-up constants, K (D), P (D*D)].
 The swing-up pumps energy towards the upright energy E_top with the sign of the power the
 actuator can feed (sign(0) = +1, so a pendulum at rest gets a first push).
 Swing-up constants, acrobot (Spong-style energy pumping with a PD on the elbow):
@@ -28,12 +29,8 @@ import numpy as np
 from sim_nodes.jit import kernel
 
 from sapga_ros.exemplars.selectors import select
-
-NONE, CATCH, CLASSICAL = 0, 1, 2
-NO_SWING, SWING_ACROBOT, SWING_CART = 0, 1, 2
-MODE, C, SWING, GAINS = 0, 1, 2, 3
-NG = 12                       # swing-up constants
-HEAD = GAINS + NG             # K starts here
+from sapga_ros.policies.controller_row import (CLASSICAL, C, GAINS, HEAD, MODE, NG, NONE,
+                                               SWING, SWING_ACROBOT, SWING_CART)
 
 
 @kernel(inline='always')

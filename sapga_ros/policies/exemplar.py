@@ -1,7 +1,7 @@
-"""Exemplar policies and the public policy file format.
+"""Exemplar policies and their file format ``sapga-policy/1``.
 
 A policy is a set of exemplar records plus the action selector of its ``style``
-(``sapga_ros.exemplars.styles``).  In memory, one row per exemplar: ``states`` (L, D) raw
+(``sapga_ros.policies.styles``).  In memory, one row per exemplar: ``states`` (L, D) raw
 float64 with angles wrapped to [0, 2pi), ``states2`` (L, D) for state-state (else (L, 0)),
 ``actions`` (L,) integer indices into the problem's action set and ``values`` (L,) (zeros
 where the style has none).  On disk: a UTF-8 JSON document
@@ -14,20 +14,23 @@ from __future__ import annotations
 import json
 import math
 import os
+from array import array
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterable
 
 import numpy as np
 
 from sapga_ros.errors import PolicyFileError, SapgaError
-from sapga_ros.exemplars.styles import STYLES, style_named
 from sapga_ros.io.atomic import write_atomic
-from sapga_ros.io.bounded import TooLarge, read_bounded
+from sapga_ros.policies.jsonfile import excerpt, finite, json_safe, meta_of
+from sapga_ros.policies.jsonstream import Bulk, complete, require
+from sapga_ros.policies.styles import STYLES, style_named
 from sim_nodes.problem import Problem, load_problem
 
 FORMAT = 'sapga-policy/1'
-MAX_POLICY_BYTES = 64 * 1024 * 1024  # a Q-learning export of 20^4 tiles is ~15 MB
+BULK = frozenset({'exemplars'})            # read one exemplar at a time
+HEADER = ('format', 'problem', 'style', 'state_names', 'actions', 'exemplars')
 
 
 @dataclass
@@ -162,68 +165,12 @@ def concat_policies(parts: list[ExemplarPolicy]) -> ExemplarPolicy:
                                    np.concatenate([p.states2 for p in parts]))
 
 
-def _reject_constant(name: str) -> float:
-    """NaN/Infinity literals parse to floats; validation then names the field holding one."""
-    return float(name)
-
-
-def excerpt(value: Any, limit: int = 60) -> str:
-    """A short repr of a (possibly huge, hostile) value for an error message."""
-    text = repr(value)
-    return text if len(text) <= limit else text[:limit] + '...'
-
-
-def json_safe(value: Any) -> Any:
-    """``value`` with every non-finite float replaced by None (JSON has no inf or NaN)."""
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    if isinstance(value, dict):
-        return {k: json_safe(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [json_safe(v) for v in value]
-    return value
-
-
-def _check_finite_tree(value: Any, where: str, depth: int = 0) -> None:
-    """Every number inside ``value`` (free-form meta) is finite."""
-    if depth > 50:
-        raise PolicyFileError(f'{where}: nested too deeply')
-    if isinstance(value, float) and not math.isfinite(value):
-        raise PolicyFileError(f'{where}: not a finite number ({json.dumps(value)})')
-    if isinstance(value, dict):
-        for k, v in value.items():
-            _check_finite_tree(v, f'{where}.{k}', depth + 1)
-    elif isinstance(value, list):
-        for i, v in enumerate(value):
-            _check_finite_tree(v, f'{where}[{i}]', depth + 1)
-
-
-def _finite(value: Any, where: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise PolicyFileError(f'{where}: expected a number, got {excerpt(value, 40)}')
-    try:
-        number = float(value)
-    except OverflowError:
-        raise PolicyFileError(f'{where}: number too large ({excerpt(value, 40)})') from None
-    if not math.isfinite(number):
-        raise PolicyFileError(f'{where}: not a finite number ({json.dumps(number)})')
-    return number
-
-
-def policy_from_document(doc: Any, problem: str | Problem | None = None,
-                         source: str = 'policy') -> ExemplarPolicy:
-    """Validate a parsed policy document; ``problem`` (if given) must match its problem."""
-    if not isinstance(doc, dict):
-        raise PolicyFileError(f'{source}: expected a JSON object at the top level')
-    if 'kind' in doc:             # a controller, not exemplars (sapga_ros.policies)
-        if doc['kind'] != 'classical':
-            raise PolicyFileError(f'{source}: kind: {excerpt(doc["kind"])} is not supported '
-                                  '(supported: classical)')
-        from sapga_ros.policies.classical import classical_from_document
-        return classical_from_document(doc, problem, source)
-    for key in ('format', 'problem', 'style', 'state_names', 'actions', 'exemplars'):
-        if key not in doc:
-            raise PolicyFileError(f'{source}: missing field {key!r}')
+def exemplar_from_document(doc: Any, problem: str | Problem | None = None,
+                           source: str = 'policy', controlled: bool = False) -> ExemplarPolicy:
+    """Validate the exemplar part of a parsed policy document; ``problem`` (if given) must
+    match its problem.  A ``catch`` (or ``kind``) is refused unless ``controlled``: the
+    reader of such documents is ``sapga_ros.policies.runnable``."""
+    require(doc, HEADER, source)
     prob = document_problem(doc, problem, source)
     if not isinstance(doc['style'], str) or doc['style'] not in STYLES:
         raise PolicyFileError(f'{source}: style: {excerpt(doc["style"])} is not supported '
@@ -235,21 +182,22 @@ def policy_from_document(doc: Any, problem: str | Problem | None = None,
     actions = doc['actions']
     if not isinstance(actions, list):
         raise PolicyFileError(f'{source}: actions: expected a list')
-    values = [_finite(a, f'{source}: actions[{i}]') for i, a in enumerate(actions)]
+    values = [finite(a, f'{source}: actions[{i}]') for i, a in enumerate(actions)]
     if values != list(prob.actions):
         raise PolicyFileError(f'{source}: actions: expected {list(prob.actions)} for '
                               f'{prob.name}, got {values}')
     exemplars = doc['exemplars']
-    if not isinstance(exemplars, list) or not exemplars:
-        raise PolicyFileError(f'{source}: exemplars: expected a non-empty list')
-    dim = prob.dim
-    count = len(exemplars)
-    states, states2 = np.empty((count, dim)), np.empty((count, dim))
-    acts = np.zeros(count, dtype=np.int64)
-    vals = np.zeros(count)
+    if isinstance(exemplars, Bulk) and exemplars.kind == 'array':
+        items: Iterable = exemplars.items()
+    elif isinstance(exemplars, list):
+        items = enumerate(exemplars)
+    else:
+        items = ()
+    states, states2, vals = array('d'), array('d'), array('d')
+    acts = array('q')
     index = {v: i for i, v in enumerate(values)}
     keys = spec.keys
-    for j, e in enumerate(exemplars):
+    for j, e in items:
         where = f'{source}: exemplars[{j}]'
         if not isinstance(e, dict) or any(k not in e for k in keys.values()):
             wanted = ', '.join(f'"{k}"' for k in keys.values())
@@ -257,24 +205,28 @@ def policy_from_document(doc: Any, problem: str | Problem | None = None,
                                   f'({spec.name} style)')
         for name, key in keys.items():
             if name in ('state', 'state2'):
-                _read_state(e[key], f'{where}.{key}', prob,
-                            states[j] if name == 'state' else states2[j])
+                (states if name == 'state' else states2).extend(
+                    _state(e[key], f'{where}.{key}', prob))
             elif name == 'action':
-                a = _finite(e[key], f'{where}.{key}')
+                a = finite(e[key], f'{where}.{key}')
                 if a not in index:
                     raise PolicyFileError(f'{where}.{key}: {a} is not one of {values}')
-                acts[j] = index[a]
+                acts.append(index[a])
             else:
-                vals[j] = _finite(e[key], f'{where}.{key}')
-    meta = doc.get('meta', {})
-    if not isinstance(meta, dict):
-        raise PolicyFileError(f'{source}: meta: expected an object')
-    _check_finite_tree(meta, f'{source}: meta')
-    policy = ExemplarPolicy(prob, states, acts, meta=meta, style=spec.name, values=vals,
-                            states2=states2 if spec.uses('state2') else None)
-    if 'catch' in doc:            # the hybrid: the LQR catches inside x'Px <= c
-        from sapga_ros.policies.classical import attach_catch
-        return attach_catch(policy, doc['catch'], source)
+                vals.append(finite(e[key], f'{where}.{key}'))
+    if not states:
+        raise PolicyFileError(f'{source}: exemplars: expected a non-empty list')
+    complete(doc)                           # the fields after the exemplars
+    if 'kind' in doc:
+        raise PolicyFileError(f'{source}: kind: a {excerpt(doc["kind"])} policy has no exemplars')
+    if 'catch' in doc and not controlled:
+        raise PolicyFileError(f'{source}: catch: a hybrid policy (read it with '
+                              'sapga_ros.policies.runnable)')
+    column = lambda a, kind: np.frombuffer(a, dtype=kind) if a else None  # noqa: E731
+    policy = ExemplarPolicy(prob, column(states, np.float64), column(acts, np.int64),
+                            meta=meta_of(doc, source), style=spec.name,
+                            values=column(vals, np.float64),
+                            states2=column(states2, np.float64) if spec.uses('state2') else None)
     return policy
 
 
@@ -298,51 +250,11 @@ def document_problem(doc: dict, problem: str | Problem | None, source: str) -> P
     return prob
 
 
-def _read_state(st: Any, where: str, prob: Problem, out: np.ndarray) -> None:
-    """Validate one state list of a policy file into ``out``."""
+def _state(st: Any, where: str, prob: Problem) -> list[float]:
+    """The coordinates of one state list of a policy file, validated."""
     dim = prob.dim
     if not isinstance(st, list) or len(st) != dim:
         got = len(st) if isinstance(st, list) else type(st).__name__
         raise PolicyFileError(f'{where}: expected {dim} numbers '
                               f'({", ".join(prob.state_names)}), got {got}')
-    for d, x in enumerate(st):
-        out[d] = _finite(x, f'{where}[{d}] ({prob.state_names[d]})')
-
-
-def policy_from_json(text: str | bytes, problem: str | Problem | None = None,
-                     source: str = 'policy') -> ExemplarPolicy:
-    """Parse and validate a policy document from its JSON text."""
-    if isinstance(text, bytes):
-        if len(text) > MAX_POLICY_BYTES:
-            raise PolicyFileError(f'{source}: {len(text)} bytes, larger than the '
-                                  f'{MAX_POLICY_BYTES // (1024 * 1024)} MB limit')
-        try:
-            text = text.decode('utf-8')
-        except UnicodeDecodeError as exc:
-            raise PolicyFileError(f'{source}: not UTF-8 text (byte {exc.start})') from exc
-    if len(text) > MAX_POLICY_BYTES:
-        raise PolicyFileError(f'{source}: larger than the '
-                              f'{MAX_POLICY_BYTES // (1024 * 1024)} MB limit')
-    try:
-        doc = json.loads(text, parse_constant=_reject_constant)
-    except json.JSONDecodeError as exc:
-        raise PolicyFileError(f'{source}: malformed JSON ({exc.msg}, line {exc.lineno} '
-                              f'column {exc.colno})') from exc
-    except ValueError as exc:
-        raise PolicyFileError(f'{source}: {exc}') from exc
-    except RecursionError as exc:
-        raise PolicyFileError(f'{source}: JSON nested too deeply') from exc
-    return policy_from_document(doc, problem, source)
-
-
-def load_policy(path: str | os.PathLike, problem: str | Problem | None = None) -> ExemplarPolicy:
-    """Read and validate a policy file (size-checked before it is read)."""
-    path = Path(path)
-    try:
-        data = read_bounded(path, MAX_POLICY_BYTES)
-    except TooLarge:
-        raise PolicyFileError(f'{path}: larger than the '
-                              f'{MAX_POLICY_BYTES // (1024 * 1024)} MB limit') from None
-    except OSError as exc:
-        raise PolicyFileError(f'{path}: cannot read ({exc.strerror or exc})') from exc
-    return policy_from_json(data, problem, str(path))
+    return [finite(x, f'{where}[{d}] ({prob.state_names[d]})') for d, x in enumerate(st)]
