@@ -12,7 +12,7 @@ import pytest
 
 from sapga_ros.nodes.policy_params import PARAMETERS as POLICY
 from sapga_ros.nodes.recorder_params import PARAMETERS as RECORDER
-from sapga_ros.nodes.trainer_params import parameters
+from sapga_ros.nodes.trainer_params import PARAMETERS as TRAINER
 from sim_nodes.ros.sim_settings import sim_parameters
 
 LAUNCH_DIR = Path(__file__).resolve().parents[1] / 'launch'
@@ -20,7 +20,7 @@ FILES = sorted(LAUNCH_DIR.glob('*.launch.py'))
 DECLARED = {'sim_node': {p.name for p in sim_parameters('acrobot')},
             'policy_node': {p.name for p in POLICY},
             'recorder_node': {p.name for p in RECORDER},
-            'trainer_node': {'problem', 'delta', 'checkpoint', *parameters()}}
+            'trainer_node': {p.name for p in TRAINER}}
 
 
 def test_there_are_launch_files_each_defining_generate_launch_description():
