@@ -5,20 +5,33 @@ expands to gigabytes).  ``chunk_records`` refuses a chunk above ``MAX_CHUNK_BYTE
 what is left of the reading's ``Budget`` (``BUDGET_FLOOR`` plus ``BUDGET_RATIO`` times the
 bytes on disk) before decompressing anything, decompresses with a hard output limit, checks
 the size and CRC, and only then parses the records inside with the ``mcap`` library.
+
+The budget also pays for what a reader keeps: each message costs ``MESSAGE_COST`` bytes
+besides its data (the Python objects that hold it), so chunks of millions of empty messages,
+which decompress within any byte limit, cannot turn a 1 MiB file into a gigabyte.
+
+``MAX_CHUNK_BYTES`` is the one chunk limit of the package: the writer never makes a chunk
+above it (``MAX_CHUNK_SIZE`` plus at most one ``MAX_MESSAGE_BYTES`` message, the writer
+closes a chunk once it passes its size), and every reader refuses a chunk above it.
 """
 from __future__ import annotations
 
 import io
 import zlib
 
-from mcap.records import Chunk, McapRecord
+from mcap.records import Chunk, McapRecord, Message
 from mcap.stream_reader import breakup_chunk
 
 from sapga_ros.errors import McapError
 
 MAX_CHUNK_BYTES = 64 << 20      # rosbag2's largest preset chunk is 4 MiB
-BUDGET_FLOOR = 8 << 20          # [bytes] decompressed, whatever the file size
-BUDGET_RATIO = 100              # ROS messages rarely compress 10:1; bombs do 10000:1
+MAX_CHUNK_SIZE = 16 << 20       # [bytes] the largest chunk_size a writer accepts
+MAX_MESSAGE_BYTES = 32 << 20    # [bytes] the largest message a writer records
+CHUNK_SLACK = 1 << 20           # schemas and channels sharing a chunk with its messages
+assert MAX_CHUNK_SIZE + MAX_MESSAGE_BYTES + CHUNK_SLACK <= MAX_CHUNK_BYTES
+BUDGET_FLOOR = 16 << 20         # [bytes] decompressed and kept, whatever the file size
+BUDGET_RATIO = 64               # ROS messages rarely compress 10:1; bombs do 10000:1
+MESSAGE_COST = 160              # [bytes] a kept message's objects besides its data
 
 
 class Budget:
@@ -83,7 +96,13 @@ def chunk_records(chunk: Chunk, budget: Budget, where: str) -> list[McapRecord]:
                   message_start_time=chunk.message_start_time, uncompressed_crc=0,
                   uncompressed_size=size)
     try:
-        return breakup_chunk(plain)
+        records = breakup_chunk(plain)
     except Exception as exc:  # noqa: BLE001 - any parse failure means damaged data
         raise McapError(f'{where}: damaged records inside a chunk ({type(exc).__name__})'
                         ) from exc
+    kept = sum(MESSAGE_COST + len(r.data) for r in records if isinstance(r, Message))
+    if kept > budget.left:
+        raise McapError(f'{where}: the messages read would take more than {BUDGET_RATIO} '
+                        'times the file size in memory (a decompression bomb?)')
+    budget.left -= kept
+    return records
