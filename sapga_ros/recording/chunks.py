@@ -31,7 +31,7 @@ CHUNK_SLACK = 1 << 20           # schemas and channels sharing a chunk with its 
 assert MAX_CHUNK_SIZE + MAX_MESSAGE_BYTES + CHUNK_SLACK <= MAX_CHUNK_BYTES
 BUDGET_FLOOR = 16 << 20         # [bytes] decompressed and kept, whatever the file size
 BUDGET_RATIO = 64               # ROS messages rarely compress 10:1; bombs do 10000:1
-MESSAGE_COST = 160              # [bytes] a kept message's objects besides its data
+MESSAGE_COST = 1024             # [bytes] a kept message's objects, decoded, besides its data
 
 
 class Budget:

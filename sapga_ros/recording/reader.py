@@ -201,6 +201,10 @@ def bag_files(bag: Path, rec: Recording) -> list[Path]:
             raise McapError(f'{bag}: neither {METADATA_FILE} nor .mcap files: not a bag')
         return files
     rec.bag_metadata = meta
+    custom = meta.get('custom_data')
+    if isinstance(custom, dict) and custom.get('incomplete'):
+        rec.problems.append(f'{bag}: the recorder marked the bag incomplete '
+                            f'({str(custom["incomplete"])[:300]})')
     return [bag / PurePath(name).name for name in meta['relative_file_paths']]
 
 
