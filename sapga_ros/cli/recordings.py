@@ -34,8 +34,10 @@ def add_inspect_arguments(parser: argparse.ArgumentParser) -> None:
 
 def add_bag_arguments(parser: argparse.ArgumentParser) -> None:
     sub = parser.add_subparsers(dest='bag_command', required=True, metavar='VERB')
-    r = sub.add_parser('reindex', help='complete a killed recording (summary, footer, '
-                                       'metadata.yaml), like ros2 bag reindex')
+    r = sub.add_parser('reindex', help='complete a killed or damaged recording (summary, '
+                                       'footer, metadata.yaml), like ros2 bag reindex; a '
+                                       'damaged chunk is skipped and its loss reported '
+                                       '(exit 1)')
     r.add_argument('path', metavar='BAG', help='bag directory or .mcap file')
 
 
