@@ -19,8 +19,6 @@ from pathlib import Path
 
 import pytest
 import yaml
-from mcap.exceptions import McapError as McapLibError
-from mcap.reader import NonSeekingReader
 from rosbags.rosbag2 import Reader as RosbagsReader
 
 from sapga_ros.errors import McapError
@@ -30,6 +28,7 @@ from sapga_ros.recording.reader import read_recording
 from sapga_ros.recording.repair import reindex
 from sapga_ros.recording.schemas import type_hash
 from sapga_ros.recording.session import RecordingSession
+from test_recording import stream_count
 from test_recording_files import T0, cdr_string, topics
 
 TIMEOUT = 30.0          # [s] upper bound of every wait; never asserted on
@@ -63,18 +62,6 @@ def fill(disk: Path, leave: int) -> Path:
     return filler
 
 
-def streamed(path: Path) -> int:
-    """Messages mcap's streaming reader yields before the file ends (or its damage)."""
-    n = 0
-    with open(path, 'rb') as f:
-        try:
-            for _ in NonSeekingReader(f).iter_messages(log_time_order=False):
-                n += 1
-        except McapLibError:
-            pass
-    return n
-
-
 def blob(k: int) -> bytes:
     return cdr_string(os.urandom(150).hex() + str(k))      # incompressible
 
@@ -106,7 +93,7 @@ def test_a_full_disk_is_reported_resumed_and_counted(small_disk, monkeypatch):
     meta = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
     files = [bag / name for name in meta['relative_file_paths']]
     assert len(files) >= 2
-    assert [f['message_count'] for f in meta['files']] == [streamed(p) for p in files]
+    assert [f['message_count'] for f in meta['files']] == [stream_count(p) for p in files]
     held = meta['message_count']
     assert held < 3000 and 'incomplete' in meta['custom_data']
     assert f'{held} of 3000 messages written' in meta['custom_data']['incomplete']
@@ -173,4 +160,4 @@ def test_the_recorder_node_says_so_and_exits_1_when_the_disk_fills(small_disk, t
     info = meta['rosbag2_bagfile_information']
     assert 'incomplete' in info['custom_data']
     files = [small_disk / 'bag' / name for name in info['relative_file_paths']]
-    assert info['message_count'] == sum(streamed(p) for p in files) > 0
+    assert info['message_count'] == sum(stream_count(p) for p in files) > 0

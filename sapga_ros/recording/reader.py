@@ -15,7 +15,7 @@ import re
 import struct
 from dataclasses import dataclass, field
 from pathlib import Path, PurePath
-from typing import Any, Collection, NamedTuple
+from typing import Any, BinaryIO, Collection, NamedTuple
 
 from mcap.exceptions import EndOfFile, InvalidMagic
 from mcap.records import Channel, Chunk, Footer, Header, Message, Metadata, Schema
@@ -110,15 +110,19 @@ class Recording:
         return counts
 
 
-def read_file(path: Path, rec: Recording, budget: Budget) -> FileRecording:
-    """Append the topics and messages of one MCAP file to ``rec``."""
+def open_storage(path: Path) -> BinaryIO:
+    """A storage file opened for reading if it is a regular file; McapError (one line)."""
     try:
-        f = open_regular(path)
+        return open_regular(path)
     except FileNotFoundError as exc:
         raise McapError(f'{path}: no such file') from exc
     except OSError as exc:
         raise McapError(f'{path}: cannot read ({exc.strerror or exc})') from exc
-    with f:
+
+
+def read_file(path: Path, rec: Recording, budget: Budget) -> FileRecording:
+    """Append the topics and messages of one MCAP file to ``rec``."""
+    with open_storage(path) as f:
         size = os.fstat(f.fileno()).st_size
         head = f.read(len(MCAP_MAGIC))
         if not head:

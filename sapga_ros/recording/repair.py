@@ -37,11 +37,12 @@ from mcap.writer import CompressionType, Writer
 
 from sapga_ros.errors import McapError
 from sapga_ros.io.atomic import write_atomic
-from sapga_ros.io.bounded import NotRegularFile, load_yaml, open_regular
+from sapga_ros.io.bounded import NotRegularFile, load_yaml
 from sapga_ros.recording.chunks import Budget
 from sapga_ros.recording.metadata import (METADATA_FILE, RECORD_NAME, BagMetadata, FileInfo,
                                           TopicInfo)
-from sapga_ros.recording.reader import FileRecording, Recording, read_file, bag_files
+from sapga_ros.recording.reader import (FileRecording, Recording, bag_files, open_storage,
+                                        read_file)
 from sapga_ros.recording.salvage import CUT_SHORT, Damage, Scan, records, scan
 
 _COMPRESSION = {'zstd': CompressionType.ZSTD, 'lz4': CompressionType.LZ4,
@@ -165,13 +166,7 @@ def repair_file(path: str | os.PathLike) -> FileRepair:
     """Rewrite an incomplete or damaged MCAP file complete, in place; what was done."""
     path = Path(path)
     refuse_link(path)
-    try:
-        f = open_regular(path)
-    except FileNotFoundError as exc:
-        raise McapError(f'{path}: no such file') from exc
-    except OSError as exc:
-        raise McapError(f'{path}: cannot read ({exc.strerror or exc})') from exc
-    with f:
+    with open_storage(path) as f:
         found = scan(f, str(path), Budget(os.fstat(f.fileno()).st_size))
         lost, counted = found.lost()
         result = FileRepair(path, 'intact', found.kept, found.damage, lost, counted)
