@@ -166,3 +166,21 @@ def test_reindex_never_follows_a_link(tmp_path, capsys):
         err = capsys.readouterr().err
         assert err.count('\n') == 1 and 'symbolic link' in err, err
     assert storage.is_symlink() and outside.read_text() == 'precious'
+
+
+def test_reading_goes_on_past_a_chunk_with_damaged_contents(tmp_path):
+    """`sapga inspect`'s reader skips a chunk whose data is damaged and reads the rest: every
+    message the stream reader decodes, the file called incomplete with the byte named."""
+    from sapga_ros.recording.reader import read_recording
+
+    write_episodes(tmp_path / 'b', 3, 200, chunk_size=1024).close()
+    path = tmp_path / 'b' / 'b_0.mcap'
+    data = bytearray(path.read_bytes())
+    places = layout(bytes(data))
+    start, end, _ = [p for p in places if isinstance(p[2], Chunk)][1]
+    data[(start + end) // 2] ^= 0x04
+    path.write_bytes(bytes(data))
+    rec = read_recording(tmp_path / 'b')
+    got = Counter((m.topic, m.log_time, m.data) for m in rec.messages)
+    assert got == decodable(bytes(data), places) and 0 < len(rec.messages) < 606
+    assert not rec.complete and f'byte {start}' in rec.error and 'skipped' in rec.error

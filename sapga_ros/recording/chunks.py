@@ -34,6 +34,10 @@ BUDGET_RATIO = 64               # ROS messages rarely compress 10:1; bombs do 10
 MESSAGE_COST = 1024             # [bytes] a kept message's objects, decoded, besides its data
 
 
+class BudgetExceeded(McapError):
+    """The reading has used up its budget: reading on would only be refused too."""
+
+
 class Budget:
     """How many decompressed bytes one reading may still produce."""
 
@@ -45,8 +49,8 @@ class Budget:
             raise McapError(f'{where}: chunk states {n} uncompressed bytes, more than the '
                             f'limit of {MAX_CHUNK_BYTES >> 20} MiB (a decompression bomb?)')
         if n > self.left:
-            raise McapError(f'{where}: chunks expand beyond {BUDGET_RATIO} times the file '
-                            'size (a decompression bomb?)')
+            raise BudgetExceeded(f'{where}: chunks expand beyond {BUDGET_RATIO} times the '
+                                 'file size (a decompression bomb?)')
         self.left -= n
 
 
@@ -102,7 +106,8 @@ def chunk_records(chunk: Chunk, budget: Budget, where: str) -> list[McapRecord]:
                         ) from exc
     kept = sum(MESSAGE_COST + len(r.data) for r in records if isinstance(r, Message))
     if kept > budget.left:
-        raise McapError(f'{where}: the messages read would take more than {BUDGET_RATIO} '
-                        'times the file size in memory (a decompression bomb?)')
+        raise BudgetExceeded(f'{where}: the messages read would take more than '
+                             f'{BUDGET_RATIO} times the file size in memory (a decompression '
+                             'bomb?)')
     budget.left -= kept
     return records
