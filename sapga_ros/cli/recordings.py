@@ -97,8 +97,8 @@ def cmd_inspect(args: argparse.Namespace) -> int:
 
 
 def cmd_bag(args: argparse.Namespace) -> int:
-    """Exit status 0: every message intact; 1: messages were lost to damage, or a file held
-    nothing readable (left as it was); 2: not a recording."""
+    """Exit status 0: no damage found; 1: damage found (what it cost is reported), or a file
+    held nothing readable (left as it was); 2: not a recording."""
     from sapga_ros.recording.repair import reindex
 
     result = reindex(args.path)

@@ -246,7 +246,8 @@ class ReindexResult:
 
     @property
     def lost(self) -> bool:
-        """Whether messages were lost to damage (or a file could not be repaired)."""
+        """Whether damage cost (or may have cost) messages, or a file could not be
+        repaired."""
         return any(r.lost or not r.counted or r.action == 'kept' for r in self.files)
 
 
