@@ -184,3 +184,22 @@ def test_reading_goes_on_past_a_chunk_with_damaged_contents(tmp_path):
     got = Counter((m.topic, m.log_time, m.data) for m in rec.messages)
     assert got == decodable(bytes(data), places) and 0 < len(rec.messages) < 606
     assert not rec.complete and f'byte {start}' in rec.error and 'skipped' in rec.error
+
+
+def test_a_killed_bag_keeps_its_messages_when_the_chunk_defining_its_channels_is_lost(
+        tmp_path):
+    """The first chunk holds the channel definitions and a killed file has no summary; the
+    writer's sapga_channel records still name every channel, so reindex keeps every message
+    of the other chunks (the stream reader alone decodes none of them)."""
+    bag = killed_bag(tmp_path, 'run')
+    path = sorted(bag.glob('*.mcap'))[-1]
+    intact = path.read_bytes()
+    places = layout(intact)
+    first = next(p for p in places if isinstance(p[2], Chunk))
+    damaged = bytearray(intact)
+    damaged[(first[0] + first[1]) // 2] ^= 0x08
+    path.write_bytes(bytes(damaged))
+    assert not decodable(bytes(damaged), places)
+    assert cli.main(['bag', 'reindex', str(bag)]) == 1
+    others = decodable(intact, places) - decodable(intact, [first])
+    assert others and random_access(path) == others

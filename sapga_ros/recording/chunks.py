@@ -17,9 +17,10 @@ closes a chunk once it passes its size), and every reader refuses a chunk above 
 from __future__ import annotations
 
 import io
+import json
 import zlib
 
-from mcap.records import Chunk, McapRecord, Message
+from mcap.records import Channel, Chunk, McapRecord, Message, Metadata, Schema
 from mcap.stream_reader import breakup_chunk
 
 from sapga_ros.errors import McapError
@@ -32,6 +33,32 @@ assert MAX_CHUNK_SIZE + MAX_MESSAGE_BYTES + CHUNK_SLACK <= MAX_CHUNK_BYTES
 BUDGET_FLOOR = 16 << 20         # [bytes] decompressed and kept, whatever the file size
 BUDGET_RATIO = 64               # ROS messages rarely compress 10:1; bombs do 10000:1
 MESSAGE_COST = 1024             # [bytes] a kept message's objects, decoded, besides its data
+
+
+CHANNEL_RECORD = 'sapga_channel'     # a channel and its schema, outside the chunks
+
+
+def channel_record(channel: Channel, schema: Schema) -> dict[str, str]:
+    """The ``sapga_channel`` Metadata record of a channel and its schema."""
+    return {'id': str(channel.id), 'topic': channel.topic,
+            'message_encoding': channel.message_encoding,
+            'metadata': json.dumps(dict(channel.metadata), sort_keys=True),
+            'schema_id': str(schema.id), 'schema_name': schema.name,
+            'schema_encoding': schema.encoding, 'schema_data': schema.data.decode('utf-8')}
+
+
+def channel_from(record: Metadata) -> tuple[Channel, Schema] | None:
+    """The channel and schema of a ``sapga_channel`` record (None if it is not one)."""
+    m = record.metadata
+    try:
+        meta = json.loads(m['metadata'])
+        schema = Schema(id=int(m['schema_id']), name=m['schema_name'],
+                        encoding=m['schema_encoding'], data=m['schema_data'].encode('utf-8'))
+        return (Channel(id=int(m['id']), topic=m['topic'],
+                        message_encoding=m['message_encoding'], schema_id=schema.id,
+                        metadata={str(k): str(v) for k, v in meta.items()}), schema)
+    except (KeyError, ValueError, TypeError, AttributeError):
+        return None
 
 
 class BudgetExceeded(McapError):

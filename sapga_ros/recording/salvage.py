@@ -11,9 +11,10 @@ So one damaged chunk costs its own messages only, never those of the chunks afte
 
 The message indexes that follow a lost chunk say how many messages it held, per channel;
 the loss is reported per topic (``Scan.lost``), or as unknown when they are lost too.  The
-file's schemas and channels come from every intact chunk and, for a finished file, from the
-summary.  Records after the data section (summary, footer) are read for their schemas and
-channels only.
+file's schemas and channels come from every intact chunk, for a finished file from the
+summary, and from this package's ``sapga_channel`` records (a lost chunk may have held the
+only definition of a channel).  Records after the data section (summary, footer) are read
+for their schemas and channels only.
 
 ``scan`` reads twice: once to find the intact records and the channels, once (``records``)
 to hand them over in file order, so a message whose channel is defined later (in the
@@ -36,7 +37,8 @@ from mcap.records import (Channel, Chunk, DataEnd, Footer, Header, Message, Mess
                           Metadata, Schema)
 
 from sapga_ros.errors import McapError
-from sapga_ros.recording.chunks import DECOMPRESSORS, MAX_CHUNK_BYTES, Budget, chunk_records
+from sapga_ros.recording.chunks import (CHANNEL_RECORD, DECOMPRESSORS, MAX_CHUNK_BYTES, Budget,
+                                        channel_from, chunk_records)
 
 MAGIC = b'\x89MCAP0\r\n'
 CUT_SHORT = 'cut short'
@@ -241,6 +243,7 @@ class _Walk:
     def __init__(self, scan: Scan, mem: Any, budget: Budget) -> None:
         self.scan, self.mem, self.budget = scan, mem, budget
         self.open: Damage | None = None     # the damage whose message indexes may follow
+        self.backups: list[Metadata] = []   # sapga_channel records
 
     def run(self) -> None:
         scan, mem, size = self.scan, self.mem, self.scan.size
@@ -266,6 +269,8 @@ class _Walk:
                 if data:
                     scan.spans.append((pos, end))
             elif isinstance(record, _DATA) and data:
+                if isinstance(record, Metadata) and record.name == CHANNEL_RECORD:
+                    self.backups.append(record)
                 if isinstance(record, Header):
                     scan.header = scan.header or record
                 elif isinstance(record, Message):
@@ -278,6 +283,11 @@ class _Walk:
             pos = end
         if pos is not None and pos < size and not (scan.footer and size - pos == len(MAGIC)):
             self.scan.damage.append(Damage(pos, size, CUT_SHORT))
+        for record in self.backups:     # definitions lost with the chunk that held them
+            found = channel_from(record)
+            if found is not None and found[0].id not in scan.channels:
+                scan.channels[found[0].id] = found[0]
+                scan.schemas.setdefault(found[1].id, found[1])
 
     def _define(self, record: Schema | Channel) -> None:
         table = self.scan.schemas if isinstance(record, Schema) else self.scan.channels

@@ -4,17 +4,23 @@ Every byte the ``mcap`` library's ``Writer`` emits goes to the operating system 
 (an unbuffered file: survives SIGKILL); ``flush`` closes the chunk in progress.  A write
 that fails (a full disk) marks the file broken: it takes nothing more, is closed without
 summary and footer, and keeps what reached the disk for ``sapga bag reindex``.
+
+Each channel and its schema are also written outside the chunks, as a Metadata record
+``sapga_channel`` (``chunks.channel_record``): the chunk that defines a channel may be the
+one a flipped bit spoils, and without its definition no later message of the channel could
+be kept; readers that do not know the record skip it.
 """
 from __future__ import annotations
 
 from pathlib import Path
 from typing import IO, Any, Mapping
 
+from mcap.records import Channel, Schema
 from mcap.writer import CompressionType, Writer
 
 from sapga_ros import __version__
 from sapga_ros.errors import McapError
-from sapga_ros.recording.chunks import MAX_MESSAGE_BYTES
+from sapga_ros.recording.chunks import MAX_MESSAGE_BYTES, CHANNEL_RECORD, channel_record
 from sapga_ros.recording.metadata import TopicInfo, qos_yaml
 from sapga_ros.recording.schemas import message_definition
 
@@ -89,11 +95,17 @@ class StorageFile:
                                  encoding=SCHEMA_ENCODING,
                                  data=message_definition(topic.type).encode('utf-8'))
             self._schemas[topic.type] = schema_id
-        self.channels[topic.name] = self._do(
-            self._writer.register_channel, topic=topic.name,
-            message_encoding=topic.serialization_format, schema_id=schema_id,
-            metadata={'offered_qos_profiles': qos_yaml(topic.offered_qos_profiles),
-                      'topic_type_hash': topic.type_description_hash})
+        metadata = {'offered_qos_profiles': qos_yaml(topic.offered_qos_profiles),
+                    'topic_type_hash': topic.type_description_hash}
+        channel_id = self._do(self._writer.register_channel, topic=topic.name,
+                              message_encoding=topic.serialization_format,
+                              schema_id=schema_id, metadata=metadata)
+        self.channels[topic.name] = channel_id
+        self._do(self._writer.add_metadata, CHANNEL_RECORD, channel_record(
+            Channel(id=channel_id, topic=topic.name, schema_id=schema_id, metadata=metadata,
+                    message_encoding=topic.serialization_format),
+            Schema(id=schema_id, name=topic.type, encoding=SCHEMA_ENCODING,
+                   data=message_definition(topic.type).encode('utf-8'))))
 
     def write(self, topic: str, data: bytes, log_time: int, publish_time: int) -> None:
         if len(data) > MAX_MESSAGE_BYTES:
