@@ -32,7 +32,7 @@ CHUNK_SLACK = 1 << 20           # schemas and channels sharing a chunk with its 
 assert MAX_CHUNK_SIZE + MAX_MESSAGE_BYTES + CHUNK_SLACK <= MAX_CHUNK_BYTES
 BUDGET_FLOOR = 16 << 20         # [bytes] decompressed and kept, whatever the file size
 BUDGET_RATIO = 64               # ROS messages rarely compress 10:1; bombs do 10000:1
-MESSAGE_COST = 1024             # [bytes] a kept message's objects, decoded, besides its data
+MESSAGE_COST = 1536             # [bytes] a kept message's objects, decoded, besides its data
 
 
 CHANNEL_RECORD = 'sapga_channel'     # a channel and its schema, outside the chunks
@@ -62,14 +62,30 @@ def channel_from(record: Metadata) -> tuple[Channel, Schema] | None:
 
 
 class BudgetExceeded(McapError):
-    """The reading has used up its budget: reading on would only be refused too."""
+    """The reading has used up its budget: reading on would only be refused too.
+    ``records``: those of the chunk that fit in what was left, in order."""
+
+    def __init__(self, message: str, records: list[McapRecord] | None = None) -> None:
+        super().__init__(message)
+        self.records = records or []
 
 
 class Budget:
-    """How many decompressed bytes one reading may still produce."""
+    """How many decompressed bytes one reading may still produce (and keep).
 
-    def __init__(self, size_on_disk: int) -> None:
-        self.left = BUDGET_FLOOR + BUDGET_RATIO * max(0, size_on_disk)
+    A reading that keeps its messages (``keeps``) pays for them too; one that streams them
+    on (``Budget.streaming``: reindex, recounts) holds one chunk at a time and is bounded by
+    ``MAX_CHUNK_BYTES`` a chunk only."""
+
+    def __init__(self, size_on_disk: int, keeps: bool = True) -> None:
+        self.left: float = BUDGET_FLOOR + BUDGET_RATIO * max(0, size_on_disk)
+        self.keeps = keeps
+
+    @classmethod
+    def streaming(cls) -> Budget:
+        budget = cls(0, keeps=False)
+        budget.left = float('inf')
+        return budget
 
     def take(self, n: int, where: str) -> None:
         if n > MAX_CHUNK_BYTES:
@@ -131,10 +147,12 @@ def chunk_records(chunk: Chunk, budget: Budget, where: str) -> list[McapRecord]:
     except Exception as exc:  # noqa: BLE001 - any parse failure means damaged data
         raise McapError(f'{where}: damaged records inside a chunk ({type(exc).__name__})'
                         ) from exc
-    kept = sum(MESSAGE_COST + len(r.data) for r in records if isinstance(r, Message))
-    if kept > budget.left:
-        raise BudgetExceeded(f'{where}: the messages read would take more than '
-                             f'{BUDGET_RATIO} times the file size in memory (a decompression '
-                             'bomb?)')
-    budget.left -= kept
+    if budget.keeps:
+        for i, r in enumerate(records):
+            if isinstance(r, Message):
+                budget.left -= MESSAGE_COST + len(r.data)
+                if budget.left < 0:
+                    raise BudgetExceeded(f'{where}: the messages read would take more than '
+                                         f'{BUDGET_RATIO} times the file size in memory (a '
+                                         'decompression bomb?)', records[:i])
     return records

@@ -7,7 +7,6 @@ chunk in memory at a time.
 """
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 from mcap.records import Message
@@ -29,10 +28,9 @@ def held(path: Path) -> tuple[dict[str, int], int, int]:
     except OSError:
         return counts, first, last
     with f:
-        size = os.fstat(f.fileno()).st_size
         try:
-            found = scan(f, str(path), Budget(size))
-            for r in records(f, found, Budget(size)):
+            found = scan(f, str(path), Budget.streaming())
+            for r in records(f, found, Budget.streaming()):
                 if isinstance(r, Message):
                     topic = found.channels[r.channel_id].topic
                     counts[topic] = counts.get(topic, 0) + 1

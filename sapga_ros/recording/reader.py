@@ -142,7 +142,9 @@ def read_file(path: Path, rec: Recording, budget: Budget) -> FileRecording:
                 try:
                     records = (chunk_records(record, budget, f'{path}: byte {good}')
                                if isinstance(record, Chunk) else [record])
-                except BudgetExceeded:
+                except BudgetExceeded as exc:     # keep what fits, then stop
+                    for r in exc.records:
+                        _take(r, rec, out, channels, schemas)
                     raise
                 except McapError as exc:    # this chunk only: the next record is whole
                     out.error = out.error or (f'{exc}; its messages are skipped (`sapga bag '

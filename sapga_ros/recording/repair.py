@@ -110,7 +110,7 @@ def _write(out_f: Any, f: Any, found: Scan) -> int:
                                              schemas.get(c.schema_id, 0), dict(c.metadata))
                 for cid, c in sorted(found.channels.items())}
     count = 0
-    for r in records(f, found, Budget(found.size)):
+    for r in records(f, found, Budget.streaming()):
         if isinstance(r, Message) and r.channel_id in channels:
             writer.add_message(channels[r.channel_id], r.log_time, r.data, r.publish_time,
                                r.sequence)
@@ -167,7 +167,7 @@ def repair_file(path: str | os.PathLike) -> FileRepair:
     path = Path(path)
     refuse_link(path)
     with open_storage(path) as f:
-        found = scan(f, str(path), Budget(os.fstat(f.fileno()).st_size))
+        found = scan(f, str(path), Budget.streaming())
         lost, counted = found.lost()
         result = FileRepair(path, 'intact', found.kept, found.damage, lost, counted)
         if found.header is None and not found.kept:
