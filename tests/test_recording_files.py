@@ -261,15 +261,15 @@ def test_a_zstd_bomb_is_refused_before_it_expands(tmp_path):
 
 def test_many_small_chunks_cannot_add_up_to_a_bomb(tmp_path):
     """Chunks each within the limit stop once what they expand to and the messages kept
-    (each costing MESSAGE_COST besides its data) pass the budget: BUDGET_RATIO times the
+    (each costing message_cost of its size) pass the budget: BUDGET_RATIO times the
     file plus BUDGET_FLOOR; the reading ends there with a warning, keeping what was read."""
-    from sapga_ros.recording.chunks import BUDGET_FLOOR, BUDGET_RATIO, MESSAGE_COST
+    from sapga_ros.recording.chunks import BUDGET_FLOOR, BUDGET_RATIO, message_cost
 
     path = message_chunks(tmp_path / 'many.mcap', chunks=100, per_chunk=5_000)
     size = path.stat().st_size
     rec = read_recording(path)
     assert 'decompression bomb' in rec.error and not rec.complete
-    assert 0 < len(rec.messages) * (MESSAGE_COST + 12) <= BUDGET_FLOOR + BUDGET_RATIO * size
+    assert 0 < len(rec.messages) * message_cost(12) <= BUDGET_FLOOR + BUDGET_RATIO * size
 
 
 def test_a_fifo_is_refused_without_blocking(tmp_path):

@@ -41,8 +41,8 @@ from sapga_ros.io.bounded import NotRegularFile, load_yaml
 from sapga_ros.recording.chunks import Budget
 from sapga_ros.recording.metadata import (METADATA_FILE, RECORD_NAME, BagMetadata, FileInfo,
                                           TopicInfo)
-from sapga_ros.recording.reader import (FileRecording, Recording, bag_files, open_storage,
-                                        read_file)
+from sapga_ros.recording.held import Survey, recount, survey
+from sapga_ros.recording.reader import Recording, bag_files, open_storage
 from sapga_ros.recording.salvage import CUT_SHORT, Damage, Scan, records, scan
 
 _COMPRESSION = {'zstd': CompressionType.ZSTD, 'lz4': CompressionType.LZ4,
@@ -209,18 +209,18 @@ def _rewrite(path: Path, f: Any, found: Scan, result: FileRepair) -> None:
             os.unlink(tmp)
 
 
-def _topic(info: Any) -> TopicInfo:
+def _topic(name: str, channel: Channel, type_name: str) -> TopicInfo:
     try:
-        qos = load_yaml(info.metadata.get('offered_qos_profiles', '') or '[]')
+        qos = load_yaml(channel.metadata.get('offered_qos_profiles', '') or '[]')
     except yaml.YAMLError:
         qos = []
-    return TopicInfo(info.name, info.type, qos if isinstance(qos, list) else [],
-                     info.metadata.get('topic_type_hash', ''), info.message_encoding)
+    return TopicInfo(name, type_name, qos if isinstance(qos, list) else [],
+                     channel.metadata.get('topic_type_hash', ''), channel.message_encoding)
 
 
-def _custom_data(files: list[FileRecording]) -> dict[str, str]:
-    for f in reversed(files):
-        text = f.metadata.get(RECORD_NAME, {}).get('serialized_metadata', '')
+def _custom_data(surveys: list[Survey]) -> dict[str, str]:
+    for s in reversed(surveys):
+        text = s.metadata.get(RECORD_NAME, {}).get('serialized_metadata', '')
         try:
             custom = (load_yaml(text) or {}).get('custom_data')
         except (yaml.YAMLError, AttributeError):
@@ -264,16 +264,13 @@ def reindex(path: str | os.PathLike) -> ReindexResult:
     result.messages = sum(r.messages for r in result.files)
     if not path.is_dir():
         return result
-    meta, read = BagMetadata(), []
-    for file in files:
-        rec = Recording(path=str(file))
-        read.append(read_file(file, rec, Budget(file.stat().st_size)))
+    meta, surveys = BagMetadata(), [survey(file) for file in files]
+    for file, found in zip(files, surveys):
         meta.files.append(FileInfo(file.name))
-        for name, info in rec.topics.items():
-            meta.topics.setdefault(name, _topic(info))
-        for m in rec.messages:
-            meta.add_message(m.topic, m.log_time)
-    meta.custom_data = _custom_data(read)
+        for name, (channel, type_name) in found.topics.items():
+            meta.topics.setdefault(name, _topic(name, channel, type_name))
+    recount(meta, path, surveys)
+    meta.custom_data = _custom_data(surveys)
     try:
         write_atomic(path / METADATA_FILE, meta.yaml_text())
     except (NotRegularFile, OSError) as exc:
