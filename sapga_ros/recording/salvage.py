@@ -1,12 +1,13 @@
 """What of a damaged or unfinished MCAP file can still be read, record by record.
 
 A stream reader stops at the first record it cannot read; ``scan`` goes on.  It walks the
-records one after the other, each parsed strictly (its fields fill its stated length
-exactly) and each chunk checked (bounded decompression, size and CRC: ``chunks.py``).  A
-chunk whose contents are damaged but whose record is whole is skipped by its length; a
-record that does not parse (a flipped length, opcode or string size) starts a search for
-the next record that proves itself, byte by byte: a chunk that decompresses to its size
-and CRC, or a metadata or message index record whose end is the start of another record.
+records one after the other, each parsed strictly (``mcap_records.py``: its fields fill its
+stated length exactly) and each chunk checked (bounded decompression, size and CRC:
+``chunks.py``).  A chunk whose contents are damaged but whose record is whole is skipped by
+its length; a record that does not parse (a flipped length, opcode or string size) starts
+a search for the next record that proves itself, byte by byte: a chunk that decompresses
+to its size and CRC, or a metadata or message index record whose end is the start of
+another record.
 So one damaged chunk costs its own messages only, never those of the chunks after it.
 
 The message indexes that follow a lost chunk say how many messages it held, per channel;
@@ -22,44 +23,22 @@ summary) is kept too.  Memory: one chunk at a time, plus the record list.
 """
 from __future__ import annotations
 
-import dataclasses
 import io
 import mmap
-import struct
-import zlib
 from dataclasses import dataclass, field
 from typing import Any, Iterator
 
-from mcap.data_stream import ReadDataStream
-from mcap.exceptions import EndOfFile
 from mcap.opcode import Opcode
 from mcap.records import (Channel, Chunk, DataEnd, Footer, Header, Message, MessageIndex,
                           Metadata, Schema)
 
 from sapga_ros.errors import McapError
-from sapga_ros.recording.chunks import (CHANNEL_RECORD, DECOMPRESSORS, MAX_CHUNK_BYTES, Budget,
-                                        channel_from, chunk_records)
+from sapga_ros.recording.chunks import CHANNEL_RECORD, Budget, channel_from, chunk_records
+from sapga_ros.recording.mcap_records import (CUT_SHORT, MAGIC, chains, chunk_by_fields,
+                                              chunk_by_length, parse_at, parse_span, resized)
 
-MAGIC = b'\x89MCAP0\r\n'
-CUT_SHORT = 'cut short'
-_PARSERS: dict[int, Any] = {Opcode.HEADER: Header, Opcode.FOOTER: Footer,
-                            Opcode.SCHEMA: Schema, Opcode.CHANNEL: Channel,
-                            Opcode.MESSAGE: Message, Opcode.CHUNK: Chunk,
-                            Opcode.MESSAGE_INDEX: MessageIndex, Opcode.METADATA: Metadata,
-                            Opcode.DATA_END: DataEnd}
-_KNOWN = {int(op) for op in Opcode}
 _SYNC = (Opcode.CHUNK, Opcode.METADATA, Opcode.MESSAGE_INDEX)    # records that prove a resync
 _DATA = (Header, Schema, Channel, Message, Metadata)
-
-
-class _Exact(io.BytesIO):
-    """Bytes that refuse a short read: a field longer than its record is damage."""
-
-    def read(self, n: int | None = -1) -> bytes:
-        data = super().read(n)
-        if n is not None and n >= 0 and len(data) != n:
-            raise EndOfFile()
-        return data
 
 
 @dataclass
@@ -116,94 +95,12 @@ class Scan:
         self.per_channel[message.channel_id] = self.per_channel.get(message.channel_id, 0) + 1
 
 
-def _parse(mem: Any, pos: int, size: int) -> tuple[Any, int]:
-    """The record at ``pos`` (None for a skippable one) and its end; ValueError if damaged."""
-    if pos + 9 > size:
-        raise ValueError(CUT_SHORT)
-    opcode = mem[pos]
-    length = struct.unpack_from('<Q', mem, pos + 1)[0]
-    end = pos + 9 + length
-    if end > size:
-        raise ValueError(f'record length {length} runs past the end of the file')
-    if opcode not in _PARSERS:
-        if opcode in _KNOWN or opcode >= 0x80:
-            return None, end                 # summary records, private records
-        raise ValueError(f'unknown record opcode {opcode:#04x}')
-    content = _Exact(mem[pos + 9:end])
-    stream = ReadDataStream(content)
-    try:
-        if opcode == Opcode.MESSAGE:
-            record = Message.read(stream, length)
-        else:
-            record = _PARSERS[opcode].read(stream)
-    except (EndOfFile, UnicodeDecodeError, struct.error) as exc:
-        raise ValueError(f'damaged {Opcode(opcode).name.lower()} record') from exc
-    if content.tell() != length:
-        raise ValueError(f'{Opcode(opcode).name.lower()} record longer than its fields')
-    return record, end
-
-
-def _chunk_by_fields(mem: Any, pos: int, size: int) -> tuple[Chunk, int]:
-    """The chunk at ``pos`` read by its fields, its record length ignored (as the ``mcap``
-    stream reader reads it), and its end; ValueError if it does not parse."""
-    head = pos + 9 + 28             # start, end, uncompressed size and CRC
-    if head + 4 > size:
-        raise ValueError(CUT_SHORT)
-    name = struct.unpack_from('<I', mem, head)[0]
-    if head + 4 + name + 8 > size:
-        raise ValueError('damaged chunk record')
-    data = struct.unpack_from('<Q', mem, head + 4 + name)[0]
-    end = head + 4 + name + 8 + data
-    if end > size:
-        raise ValueError('damaged chunk record')
-    content = _Exact(mem[pos + 9:end])
-    try:
-        return Chunk.read(ReadDataStream(content)), end
-    except (EndOfFile, UnicodeDecodeError, struct.error) as exc:
-        raise ValueError('damaged chunk record') from exc
-
-
-def _chunk_by_length(mem: Any, pos: int, size: int) -> tuple[Chunk, int]:
-    """The chunk at ``pos`` with the data its record length leaves for it, its data length
-    field ignored, and its end; ValueError if it does not parse."""
-    length = struct.unpack_from('<Q', mem, pos + 1)[0]
-    end, head = pos + 9 + length, pos + 9 + 28
-    if end > size or head + 4 > end:
-        raise ValueError('damaged chunk record')
-    start, stop, usize, crc, name = struct.unpack_from('<QQQII', mem, pos + 9)
-    if head + 4 + name + 8 > end:
-        raise ValueError('damaged chunk record')
-    try:
-        compression = bytes(mem[head + 4:head + 4 + name]).decode('utf-8')
-    except UnicodeDecodeError as exc:
-        raise ValueError('damaged chunk record') from exc
-    return Chunk(compression=compression, data=bytes(mem[head + 4 + name + 8:end]),
-                 message_start_time=start, message_end_time=stop, uncompressed_crc=crc,
-                 uncompressed_size=usize), end
-
-
-def resized(chunk: Chunk, budget: Budget) -> Chunk | None:
-    """``chunk`` with its true uncompressed size, if only its stated size is wrong: its
-    contents decompress (within the limits) to data of its CRC."""
-    if not chunk.uncompressed_crc or chunk.compression not in DECOMPRESSORS:
-        return None
-    limit = min(MAX_CHUNK_BYTES, budget.left)
-    try:
-        raw = DECOMPRESSORS[chunk.compression](chunk.data, limit + 1)
-    except Exception:  # noqa: BLE001 - any codec error: the contents are damaged
-        return None
-    if len(raw) > limit or len(raw) == chunk.uncompressed_size \
-            or zlib.crc32(raw) != chunk.uncompressed_crc:
-        return None
-    return dataclasses.replace(chunk, uncompressed_size=len(raw))
-
-
 def _proves(mem: Any, pos: int, size: int, budget: Budget, where: str) -> int | None:
     """The end of the record at ``pos`` if it proves a resynchronisation, else None."""
     if mem[pos] not in _SYNC:
         return None
     try:
-        record, end = _parse(mem, pos, size)
+        record, end = parse_at(mem, pos, size)
         if isinstance(record, Chunk):
             if record.compression not in ('', 'zstd', 'lz4') or not record.data:
                 return None
@@ -211,16 +108,9 @@ def _proves(mem: Any, pos: int, size: int, budget: Budget, where: str) -> int | 
             return end
     except (ValueError, McapError):
         return None
-    if end in (size, size - len(MAGIC)) or _chains(mem, end, size):
+    if end in (size, size - len(MAGIC)) or chains(mem, end, size):
         return end
     return None
-
-
-def _chains(mem: Any, pos: int, size: int) -> bool:
-    """Whether a plausible record header starts at ``pos``."""
-    if pos + 9 > size or mem[pos] not in _KNOWN:
-        return False
-    return pos + 9 + struct.unpack_from('<Q', mem, pos + 1)[0] <= size
 
 
 def _resync(mem: Any, start: int, size: int, budget: Budget, where: str) -> int | None:
@@ -253,7 +143,7 @@ class _Walk:
         data = True             # in the data section (before DataEnd)
         while pos is not None and pos + 9 <= size:
             try:
-                record, end = _parse(mem, pos, size)
+                record, end = parse_at(mem, pos, size)
             except ValueError as exc:
                 fixed = self._misstated(pos) if mem[pos] == Opcode.CHUNK and data else None
                 pos = fixed if fixed is not None else self._damaged(pos, str(exc))
@@ -318,7 +208,7 @@ class _Walk:
     def _misstated(self, pos: int) -> int | None:
         """A chunk whose contents are whole behind a wrong record length: read by its
         fields, it is kept (and the file rewritten); where reading goes on, or None."""
-        for read in (_chunk_by_fields, _chunk_by_length):
+        for read in (chunk_by_fields, chunk_by_length):
             try:
                 chunk, end = read(self.mem, pos, self.scan.size)
             except ValueError:
@@ -365,26 +255,12 @@ def scan(f: Any, path: str, budget: Budget) -> Scan:
             mem.close()
 
 
-def _parse_span(mem: Any, pos: int, end: int) -> Any:
-    """The record scan found intact at ``pos``..``end``, however its lengths were read."""
-    if mem[pos] != Opcode.CHUNK:
-        return _parse(mem, pos, len(mem))[0]
-    for read in (_parse, _chunk_by_fields, _chunk_by_length):
-        try:
-            record, stop = read(mem, pos, len(mem))
-        except ValueError:
-            continue
-        if stop == end:
-            return record
-    raise McapError(f'byte {pos}: the chunk found intact does not read again')
-
-
 def records(f: Any, found: Scan, budget: Budget) -> Iterator[Any]:
     """The data records of ``found``'s intact spans, in file order, chunks opened."""
     mem = _mapped(f)
     try:
         for pos, end in found.spans:
-            record = _parse_span(mem, pos, end)
+            record = parse_span(mem, pos, end)
             if isinstance(record, Chunk):
                 where = f'{found.path}: byte {pos}'
                 try:
