@@ -544,6 +544,8 @@ def test_sigterm_and_ctrl_c_finish_the_bag(context, ros_env, tmp_path, sig):
     ('flush_period:=nan', 'flush_period'),
     ('split:=hour', 'split'),
     ('bag:=../escape', 'bag'),
+    ('chunk_size:=1073741824', 'chunk_size'),
+    ('output_dir:=/dev/null', '/dev/null: a device, not a directory'),
 ])
 def test_bad_parameters_give_one_line_and_exit_2(ros_env, tmp_path, param, what):
     """A wrongly typed or out-of-range parameter: one line naming it, exit 2, no traceback."""

@@ -260,13 +260,16 @@ def test_a_zstd_bomb_is_refused_before_it_expands(tmp_path):
 
 
 def test_many_small_chunks_cannot_add_up_to_a_bomb(tmp_path):
-    """Chunks each within the limit stop once they expand beyond 100x the file (plus 8 MiB):
-    the reading ends there with a warning, keeping what was read."""
-    path = message_chunks(tmp_path / 'many.mcap', chunks=100, per_chunk=20_000)
+    """Chunks each within the limit stop once what they expand to and the messages kept
+    (each costing message_cost of its size) pass the budget: BUDGET_RATIO times the
+    file plus BUDGET_FLOOR; the reading ends there with a warning, keeping what was read."""
+    from sapga_ros.recording.chunks import BUDGET_FLOOR, BUDGET_RATIO, message_cost
+
+    path = message_chunks(tmp_path / 'many.mcap', chunks=100, per_chunk=5_000)
     size = path.stat().st_size
     rec = read_recording(path)
     assert 'decompression bomb' in rec.error and not rec.complete
-    assert 0 < len(rec.messages) * 35 <= 8 * 2**20 + 100 * size
+    assert 0 < len(rec.messages) * message_cost(12) <= BUDGET_FLOOR + BUDGET_RATIO * size
 
 
 def test_a_fifo_is_refused_without_blocking(tmp_path):
@@ -297,10 +300,14 @@ def test_a_fifo_is_refused_without_blocking(tmp_path):
     ('a: &x [1, 2]\nb: *x\n', 'aliases'),
     ('rosbag2_bagfile_information: {relative_file_paths: 3}', 'relative_file_paths'),
     ('{' * 10, 'not YAML'),
+    ('rosbag2_bagfile_information:\n  relative_file_paths: [bag_0.mcap, ./bag_0.mcap]\n',
+     'twice'),
+    ('#' * (2 << 20), 'larger than'),
 ])
 def test_hostile_metadata_yaml_falls_back_on_the_storage_files(tmp_path, text, why):
-    """A nested, aliased, mistyped or broken metadata.yaml is no metadata: the reading says
-    why in one line and reads the storage files of the directory."""
+    """A nested, aliased, mistyped, broken or oversized metadata.yaml, or one listing a file
+    twice (its messages would count twice), is no metadata: the reading says why in one line
+    and reads the storage files of the directory, each once."""
     bag = tmp_path / 'bag'
     write_episodes(bag, 2, 3).close()
     (bag / 'metadata.yaml').write_text(text)

@@ -6,7 +6,8 @@
 ``inspect`` summarises a rosbag2 bag directory or one MCAP file (``recording/inspect.py``)
 and plots one episode (``viz/episode_plot.py``); a recording cut short is summarised as far
 as it can be read, with a warning on stderr.  ``bag reindex`` completes a killed recording,
-like ``ros2 bag reindex`` (``recording/repair.py``).  Unreadable input, an episode not in
+like ``ros2 bag reindex`` (``recording/repair.py``), skipping damaged chunks and saying what
+they held; it exits 1 when messages were lost.  Unreadable input, an episode not in
 the recording, a plot file that cannot be written (a directory, a missing folder): one line
 on stderr, exit status 2.
 """
@@ -33,8 +34,10 @@ def add_inspect_arguments(parser: argparse.ArgumentParser) -> None:
 
 def add_bag_arguments(parser: argparse.ArgumentParser) -> None:
     sub = parser.add_subparsers(dest='bag_command', required=True, metavar='VERB')
-    r = sub.add_parser('reindex', help='complete a killed recording (summary, footer, '
-                                       'metadata.yaml), like ros2 bag reindex')
+    r = sub.add_parser('reindex', help='complete a killed or damaged recording (summary, '
+                                       'footer, metadata.yaml), like ros2 bag reindex; a '
+                                       'damaged chunk is skipped and its loss reported '
+                                       '(exit 1)')
     r.add_argument('path', metavar='BAG', help='bag directory or .mcap file')
 
 
@@ -94,11 +97,17 @@ def cmd_inspect(args: argparse.Namespace) -> int:
 
 
 def cmd_bag(args: argparse.Namespace) -> int:
+    """Exit status 0: no damage found; 1: damage found (what it cost is reported), or a file
+    held nothing readable (left as it was); 2: not a recording."""
     from sapga_ros.recording.repair import reindex
 
     result = reindex(args.path)
+    for r in result.files:
+        if r.action != 'intact' or r.damage:
+            print(r.report(), file=sys.stderr if r.lost or r.action == 'kept' else sys.stdout)
     what = (f'repaired {", ".join(p.name for p in result.repaired)}' if result.repaired
-            else 'every storage file was complete')
+            else 'every storage file was complete' if not result.lost
+            else 'nothing could be repaired')
     tail = '; wrote metadata.yaml' if result.metadata_written else ''
     print(f'{result.path}: {what}{tail}; {result.messages} messages')
-    return 0
+    return 1 if result.lost else 0

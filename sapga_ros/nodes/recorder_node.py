@@ -31,7 +31,8 @@ topics          (problem)   topics to record; default: the problem's state, comm
                             ``-p 'topics:=["odom:nav_msgs/msg/Odometry"]'``)
 split           run         ``run``: one storage file; ``episode``: a new storage file of
                             the same bag at each episode ``start`` event (as rosbag2 splits)
-chunk_size      65536       [bytes] uncompressed MCAP chunk
+chunk_size      65536       [bytes] uncompressed MCAP chunk (at most 16 MiB, the largest
+                            chunk every reader of the bag accepts)
 flush_period    1.0         [s] close the chunk in progress at least this often (0: by size);
                             the most a SIGKILL of the recorder can lose
 compression     zstd        ``zstd``, ``lz4`` or ``none`` (MCAP chunk compression)
@@ -41,7 +42,11 @@ delta           (problem)   goal delta the run uses, written to the bag metadata
 ==============  ==========  =================================================================
 
 Ctrl-C, SIGTERM and a shutdown of the ROS context finish the bag (summary, footer,
-``metadata.yaml``); after a SIGKILL, ``sapga bag reindex DIR`` completes it.  Messages that
+``metadata.yaml``); after a SIGKILL, ``sapga bag reindex DIR`` completes it.  A write that
+fails (a full disk) is logged as an error at once; the recorder keeps trying (a new storage
+file once the disk takes data again), and at the end ``metadata.yaml`` counts what the files
+hold, marks the bag ``incomplete`` in its ``custom_data``, and the recorder exits with
+status 1.  Messages that
 never reached the recorder (its queue overflowed: ``queue_depth``, or the network lost them)
 are counted per topic from the publishers' sequence numbers, with a throttled warning and a
 total in the final line (``sim_nodes/ros/dropped.py``).
@@ -77,6 +82,7 @@ from sim_nodes.problem import load_problem
 from sim_nodes.ros.common import THROTTLE_S, run_node, topic_names
 from sim_nodes.ros.diagnostics import ERROR, OK, WARN, NodeDiagnostics, Report
 from sim_nodes.ros.dropped import DropCounter
+from sim_nodes.ros.runner import EXIT_FAILED
 from sim_nodes.ros.params import declare
 
 NODE_NAME = 'recorder_node'  # its readiness service: recorder_node/ready
@@ -125,8 +131,9 @@ class RecorderNode(Node):
             self._pending[topic] = type_name
         self._check_graph()
         self._graph_timer = self.create_timer(GRAPH_PERIOD_S, self._check_graph)
+        self.failed = False         # a write failed: the bag is incomplete, exit status 1
         if p['flush_period'] > 0:
-            self._flusher = self.create_timer(p['flush_period'], self._session.flush)
+            self._flusher = self.create_timer(p['flush_period'], self._flush)
         self._ready_srv = self.create_service(Trigger, '~/ready', self._on_ready)
         self.diagnostics = NodeDiagnostics(self, 'recorder', self._problem.name, self._report)
         self.get_logger().info(f'recording {", ".join(wanted)} to {self._session.path} '
@@ -278,9 +285,25 @@ class RecorderNode(Node):
             self._session.write(topic, data, receive_ns,
                                 publish_time_ns(type_name, data, source_ns, receive_ns))
         except SapgaError as exc:
-            self.write_errors += 1
-            self.get_logger().error(f'message on {topic} not recorded ({self.write_errors} so '
-                                    f'far): {exc}', throttle_duration_sec=THROTTLE_S)
+            self._write_failed(f'message on {topic} not recorded', exc)
+
+    def _flush(self) -> None:
+        try:
+            self._session.flush()
+        except SapgaError as exc:
+            self._write_failed('the chunk in progress could not be written', exc)
+
+    def _write_failed(self, what: str, exc: SapgaError) -> None:
+        """Say at once, loudly, that recording fails; then at most every THROTTLE_S."""
+        self.write_errors += 1
+        if not self.failed:
+            self.failed = True
+            self.get_logger().error(f'CANNOT WRITE THE BAG: {exc}; messages are being lost '
+                                    'until it can write again; the bag will be marked '
+                                    'incomplete')
+            return
+        self.get_logger().error(f'{what} ({self.write_errors} failures so far): {exc}',
+                                throttle_duration_sec=THROTTLE_S)
 
     def destroy_node(self) -> None:
         """Finish the bag (summary, footer, metadata.yaml), then destroy the node."""
@@ -291,14 +314,16 @@ class RecorderNode(Node):
             try:
                 s.close()
             except SapgaError as exc:
+                self.failed = True
                 line = f'error: {exc}'
             if self.write_errors:
-                line += f'; {self.write_errors} messages could not be written'
+                line += f'; {self.write_errors} writes failed'
             lost = sum(d.count for d in self.dropped.values())
             if lost:
                 line += f'; {lost} messages were dropped before they reached the recorder'
             if self.context.ok():
-                self.get_logger().info(line)
+                log = self.get_logger()
+                (log.error if self.failed else log.info)(line)
             else:   # after a signal the context is down and rosout is gone
                 print(f'[recorder] {line}', file=sys.stderr, flush=True)
         except AttributeError:
@@ -322,9 +347,16 @@ def main(args: list[str] | None = None) -> int:
     # callbacks and `finally` finishes the bag.  They chain to the Python handler, which must
     # not raise KeyboardInterrupt in the middle of a write.
     signal.signal(signal.SIGINT, _no_interrupt)
-    return run_node(RecorderNode, args, executor=SingleThreadedExecutor,
-                    parameters=lambda: PARAMETERS, name='recorder_node', on_exit=_finishing,
+    made: list[RecorderNode] = []
+
+    def make() -> RecorderNode:
+        made.append(RecorderNode())
+        return made[-1]
+
+    code = run_node(make, args, executor=SingleThreadedExecutor, parameters=lambda: PARAMETERS,
+                    name='recorder_node', on_exit=_finishing,
                     signal_handler_options=SignalHandlerOptions.ALL)
+    return EXIT_FAILED if code == 0 and made and made[0].failed else code
 
 
 if __name__ == '__main__':

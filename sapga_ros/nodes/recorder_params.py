@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+from sapga_ros.recording.chunks import MAX_CHUNK_SIZE
 from sapga_ros.recording.session import SPLITS
 from sapga_ros.recording.writer import COMPRESSIONS, DEFAULT_CHUNK_SIZE
 from sim_nodes.params import DELTA, Param
@@ -17,7 +18,7 @@ PARAMETERS = (
     Param('bag', '', "name of the bag directory ('' = <problem>_<UTC time>); never reused"),
     Param('split', 'run', 'run: one storage file; episode: a new one at each episode start',
           choices=SPLITS),
-    Param('chunk_size', DEFAULT_CHUNK_SIZE, 'uncompressed MCAP chunk', 1, 1 << 30,
+    Param('chunk_size', DEFAULT_CHUNK_SIZE, 'uncompressed MCAP chunk', 1, MAX_CHUNK_SIZE,
           unit='bytes'),
     Param('flush_period', 1.0, 'close the chunk in progress this often (the most a SIGKILL '
           'loses); 0: by size only', 0.0, 3600.0, unit='s'),

@@ -13,13 +13,15 @@ qos.cpp) exactly:
   (``keep_last``, ``reliable``, ``transient_local``, ``automatic``) and durations as
   ``{sec, nsec}``; in an MCAP channel's metadata the same list as a YAML string.
 
-``read_bag_metadata`` reads a ``metadata.yaml`` bounded in size (4 MiB) and nesting.
+``read_bag_metadata`` reads a ``metadata.yaml`` bounded in size (1 MiB), nesting and number
+of storage files, without YAML aliases, and refuses a file listed twice (a bag would count
+its messages twice).
 """
 from __future__ import annotations
 
 import os
 from dataclasses import dataclass, field
-from pathlib import Path
+from pathlib import Path, PurePath
 from typing import Any, Mapping, Sequence
 
 import yaml
@@ -34,7 +36,8 @@ METADATA_FILE = 'metadata.yaml'
 RECORD_NAME = 'rosbag2'                     # the MCAP Metadata record rosbag2 writes
 RMW_DURATION_INFINITE = (1 << 63) - 1       # [ns]
 NO_TIME = (1 << 63) - 1                     # rosbag2's starting_time before any message
-MAX_METADATA_BYTES = 4 << 20            # some 20000 storage files
+MAX_METADATA_BYTES = 1 << 20            # some 5000 storage files
+MAX_STORAGE_FILES = 10000
 
 
 def storage_file_name(bag: str | os.PathLike, index: int) -> str:
@@ -180,4 +183,13 @@ def read_bag_metadata(bag: str | os.PathLike) -> dict[str, Any]:
     files = info.get('relative_file_paths') if isinstance(info, dict) else None
     if not isinstance(files, list) or not all(isinstance(p, str) and p for p in files):
         raise McapError(f'{path}: no rosbag2_bagfile_information.relative_file_paths list')
+    if len(files) > MAX_STORAGE_FILES:
+        raise McapError(f'{path}: relative_file_paths lists {len(files)} files, more than '
+                        f'{MAX_STORAGE_FILES}')
+    seen: set[str] = set()
+    for name in files:
+        if PurePath(name).name in seen:
+            raise McapError(f'{path}: relative_file_paths lists {PurePath(name).name[:80]!r} '
+                            'twice')
+        seen.add(PurePath(name).name)
     return info

@@ -4,7 +4,8 @@
 without one, as after a killed recorder, the ``*.mcap`` files in split order) or a single
 ``.mcap`` file, and returns every message it can read, in file order, with what stopped it:
 a file cut short (hard kill, full disk, partial copy) yields every message of its complete
-chunks with ``complete=False`` and an ``error`` naming the file and the byte where it ends.
+chunks with ``complete=False`` and an ``error`` naming the file and the byte where it ends;
+a chunk whose contents are damaged (its record whole) is skipped, and the reading goes on.
 Decompression is bounded (``chunks.py``); only regular files are opened.  McapError (one
 line) when nothing at all can be read.
 """
@@ -15,7 +16,7 @@ import re
 import struct
 from dataclasses import dataclass, field
 from pathlib import Path, PurePath
-from typing import Any, Collection, NamedTuple
+from typing import Any, BinaryIO, Collection, NamedTuple
 
 from mcap.exceptions import EndOfFile, InvalidMagic
 from mcap.records import Channel, Chunk, Footer, Header, Message, Metadata, Schema
@@ -23,7 +24,7 @@ from mcap.stream_reader import StreamReader
 
 from sapga_ros.errors import McapError
 from sapga_ros.io.bounded import open_regular
-from sapga_ros.recording.chunks import Budget, chunk_records
+from sapga_ros.recording.chunks import Budget, BudgetExceeded, chunk_records
 from sapga_ros.recording.metadata import METADATA_FILE, read_bag_metadata
 from sapga_ros.recording.schemas import full_type_name
 from sapga_ros.recording.writer import SAPGA_RECORD
@@ -85,7 +86,8 @@ class Recording:
 
     @property
     def complete(self) -> bool:
-        return not self.problems and all(f.complete for f in self.files)
+        """Every file finished (footer) and read without damage, the bag's metadata sound."""
+        return not self.problems and all(f.complete and not f.error for f in self.files)
 
     @property
     def error(self) -> str | None:
@@ -110,15 +112,19 @@ class Recording:
         return counts
 
 
-def read_file(path: Path, rec: Recording, budget: Budget) -> FileRecording:
-    """Append the topics and messages of one MCAP file to ``rec``."""
+def open_storage(path: Path) -> BinaryIO:
+    """A storage file opened for reading if it is a regular file; McapError (one line)."""
     try:
-        f = open_regular(path)
+        return open_regular(path)
     except FileNotFoundError as exc:
         raise McapError(f'{path}: no such file') from exc
     except OSError as exc:
         raise McapError(f'{path}: cannot read ({exc.strerror or exc})') from exc
-    with f:
+
+
+def read_file(path: Path, rec: Recording, budget: Budget) -> FileRecording:
+    """Append the topics and messages of one MCAP file to ``rec``."""
+    with open_storage(path) as f:
         size = os.fstat(f.fileno()).st_size
         head = f.read(len(MCAP_MAGIC))
         if not head:
@@ -133,21 +139,32 @@ def read_file(path: Path, rec: Recording, budget: Budget) -> FileRecording:
         reader = StreamReader(f, emit_chunks=True, record_size_limit=max(size, 1))
         try:
             for record in reader.records:
-                records = (chunk_records(record, budget, f'{path}: byte {good}')
-                           if isinstance(record, Chunk) else [record])
+                try:
+                    records = (chunk_records(record, budget, f'{path}: byte {good}')
+                               if isinstance(record, Chunk) else [record])
+                except BudgetExceeded as exc:     # keep what fits, then stop
+                    for r in exc.records:
+                        _take(r, rec, out, channels, schemas)
+                    raise
+                except McapError as exc:    # this chunk only: the next record is whole
+                    out.error = out.error or (f'{exc}; its messages are skipped (`sapga bag '
+                                              'reindex` keeps every other chunk)')
+                    records = []
                 for r in records:
                     _take(r, rec, out, channels, schemas)
                 good = f.tell()
         except (EndOfFile, InvalidMagic, struct.error) as exc:
             if out.complete:
-                out.error = f'{path}: damaged closing magic bytes after the footer ({exc})'
+                end = f'{path}: damaged closing magic bytes after the footer ({exc})'
             else:
-                out.error = (f'{path}: truncated after byte {good} of {size}: no footer (the '
-                             'writer did not finish; was the recorder killed?)')
+                end = (f'{path}: truncated after byte {good} of {size}: no footer (the '
+                       'writer did not finish; was the recorder killed?)')
+            out.error = f'{out.error}; {end}' if out.error else end
         except McapError as exc:
-            out.error = str(exc)
+            out.error = f'{out.error}; {exc}' if out.error else str(exc)
         except Exception as exc:  # noqa: BLE001 - any parse failure means damaged data
-            out.error = f'{path}: corrupt data after byte {good} of {size} ({exc})'[:300]
+            end = f'{path}: corrupt data after byte {good} of {size} ({exc})'[:300]
+            out.error = f'{out.error}; {end}' if out.error else end
         if not out.profile and not out.library and not channels and not out.message_count:
             raise McapError(out.error or f'{path}: no MCAP header record')
     return out
@@ -201,6 +218,10 @@ def bag_files(bag: Path, rec: Recording) -> list[Path]:
             raise McapError(f'{bag}: neither {METADATA_FILE} nor .mcap files: not a bag')
         return files
     rec.bag_metadata = meta
+    custom = meta.get('custom_data')
+    if isinstance(custom, dict) and custom.get('incomplete'):
+        rec.problems.append(f'{bag}: the recorder marked the bag incomplete '
+                            f'({str(custom["incomplete"])[:300]})')
     return [bag / PurePath(name).name for name in meta['relative_file_paths']]
 
 

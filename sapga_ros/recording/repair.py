@@ -1,147 +1,226 @@
-"""``sapga bag reindex BAG``: make a killed recording complete, as ``ros2 bag reindex`` does.
+"""``sapga bag reindex BAG``: complete a killed or damaged recording, losing nothing intact.
 
 A recorder killed with SIGKILL leaves storage files without summary and footer (only stream
-readers read them) and no ``metadata.yaml``.  ``reindex``:
+readers read them) and no ``metadata.yaml``; a flipped bit on disk spoils one chunk.
+``reindex``:
 
-1. rewrites each incomplete storage file with the ``mcap`` library's ``Writer``: every
-   record read before the damage (header, schemas, channels, messages with their times,
-   metadata records), in order, then chunk indexes, summary and footer, so random-access
-   readers (``mcap``'s ``make_reader``, rosbag2, rosbags) open it; the new file replaces the
-   old one atomically only after it reads back with the same messages;
-2. writes ``metadata.yaml`` from what the files hold (topics, QoS, counts, times), keeping
+1. reads each storage file record by record (``salvage.py``): a damaged chunk is skipped,
+   every other chunk's messages are kept, and the loss is counted per topic from the message
+   indexes;
+2. rewrites a file that lacks its footer or holds damage with the ``mcap`` library's
+   ``Writer`` into a new temporary file of the bag directory (created exclusively, never
+   through a link): header, schemas, channels, then every intact message and metadata
+   record in file order, chunk indexes, summary and footer;
+3. reads the new file back (random access, every message) and only then renames it over
+   the original; a damaged original is kept beside it as ``<file>.damaged`` (a hard link:
+   no copy), so nothing that was on disk is ever gone.  A file from which nothing can be
+   read is left as it is (nothing would be gained);
+4. writes ``metadata.yaml`` from what the files hold (topics, QoS, counts, times), keeping
    the ``custom_data`` of the last ``rosbag2`` record.
 
-A single ``.mcap`` file is repaired in place; a complete file is left as it is.
+A single ``.mcap`` file is repaired in place; a complete, intact file is left as it is.
+Symbolic links (the bag, a storage file) are refused, never followed.
 """
 from __future__ import annotations
 
 import os
+import stat
+import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import yaml
 from mcap.reader import make_reader
-from mcap.records import Channel, Chunk, Header, Message, Metadata, Schema
-from mcap.stream_reader import StreamReader
+from mcap.records import Channel, Header, Message, Metadata, Schema
 from mcap.writer import CompressionType, Writer
 
 from sapga_ros.errors import McapError
 from sapga_ros.io.atomic import write_atomic
-from sapga_ros.io.bounded import load_yaml, open_regular
-from sapga_ros.recording.chunks import Budget, chunk_records
+from sapga_ros.io.bounded import NotRegularFile, load_yaml
+from sapga_ros.recording.chunks import Budget
 from sapga_ros.recording.metadata import (METADATA_FILE, RECORD_NAME, BagMetadata, FileInfo,
                                           TopicInfo)
-from sapga_ros.recording.reader import FileRecording, Recording, read_file, bag_files
+from sapga_ros.recording.held import Survey, recount, survey
+from sapga_ros.recording.reader import Recording, bag_files, open_storage
+from sapga_ros.recording.salvage import CUT_SHORT, Damage, Scan, records, scan
 
 _COMPRESSION = {'zstd': CompressionType.ZSTD, 'lz4': CompressionType.LZ4,
                 '': CompressionType.NONE}
 
 
 @dataclass
-class ReindexResult:
-    """What ``reindex`` did."""
+class FileRepair:
+    """What ``repair_file`` did to one storage file."""
 
     path: Path
-    repaired: list[Path] = field(default_factory=list)      # files rewritten
-    messages: int = 0
-    metadata_written: bool = False
+    action: str                     # 'intact', 'repaired' or 'kept' (nothing to gain)
+    messages: int                   # messages the file holds now (readable)
+    damage: list[Damage] = field(default_factory=list)
+    lost: dict[str, int] = field(default_factory=dict)     # topic -> messages lost
+    counted: bool = True            # every damaged chunk's loss could be counted
+    kept_as: Path | None = None     # the damaged original, kept beside the file
+
+    def report(self) -> str:
+        """One line on what was found and done."""
+        regions = [d for d in self.damage if d.why != CUT_SHORT]
+        cut = [d for d in self.damage if d.why == CUT_SHORT]
+        parts = []
+        if regions:
+            d = regions[0]
+            more = f' and {len(regions) - 1} more' if len(regions) > 1 else ''
+            lost = ', '.join(f'{t} {n}' for t, n in sorted(self.lost.items()))
+            count = (f'{sum(self.lost.values())} messages lost' if self.counted else
+                     f'{sum(self.lost.values())} messages known lost, perhaps more')
+            parts.append(f'damaged bytes {d.start}-{d.end} ({d.why}){more}: {count}'
+                         f'{f" ({lost})" if lost else ""}')
+        elif self.lost:
+            lost = ', '.join(f'{t} {n}' for t, n in sorted(self.lost.items()))
+            parts.append(f'{sum(self.lost.values())} messages of undefined channels lost '
+                         f'({lost})')
+        if cut:
+            parts.append(f'the last {cut[0].end - cut[0].start} bytes are an unfinished '
+                         'record (the writer was stopped)')
+        if self.kept_as:
+            parts.append(f'the damaged original is kept as {self.kept_as.name}')
+        if self.action == 'repaired' and not self.damage and not self.lost:
+            parts.append('its summary or indexes did not match its messages')
+        what = {'intact': 'complete and intact', 'repaired': 'rewritten complete',
+                'kept': 'left unchanged: nothing readable to keep'}[self.action]
+        return f'{self.path}: {what}, {self.messages} messages' + ''.join(
+            f'; {p}' for p in parts)
 
 
-def _raw_records(path: Path) -> Iterator[Any]:
-    """Every record of an MCAP file up to the first damage, chunks unopened."""
-    with open_regular(path) as f:
-        reader = StreamReader(f, emit_chunks=True,
-                              record_size_limit=max(os.fstat(f.fileno()).st_size, 1))
-        try:
-            yield from reader.records
-        except Exception:  # noqa: BLE001 - the damaged tail: stop where it starts
-            return
+def refuse_link(path: Path) -> None:
+    """McapError if ``path`` is a symbolic link (reindex never follows one)."""
+    if path.is_symlink():
+        raise McapError(f'{path}: a symbolic link; reindex works on the bag itself, never '
+                        'through a link')
 
 
-def _records(path: Path, budget: Budget) -> Iterator[Any]:
-    """Every record of an MCAP file up to the first damage, chunks opened (bounded)."""
-    try:
-        for record in _raw_records(path):
-            if isinstance(record, Chunk):
-                yield from chunk_records(record, budget, str(path))
-            else:
-                yield record
-    except McapError:       # a chunk that does not open: the damage starts there
-        return
-
-
-def _first_compression(path: Path) -> str:
-    """The compression of the file's first chunk ('zstd' if it has none)."""
-    return next((r.compression for r in _raw_records(path) if isinstance(r, Chunk)), 'zstd')
-
-
-def _rewrite(path: Path, out_f: Any, budget: Budget) -> int:
-    """Write the readable records of ``path`` as a complete MCAP file; the message count."""
-    records = _records(path, budget)
-    header = next(records, None)
-    if not isinstance(header, Header):
-        raise McapError(f'{path}: no MCAP header record: nothing to repair')
-    writer = Writer(out_f, compression=_COMPRESSION.get(_first_compression(path),
+def _write(out_f: Any, f: Any, found: Scan) -> int:
+    """Write the intact records of ``found`` as a complete MCAP file; the message count."""
+    header = found.header or Header(profile='ros2', library='')
+    writer = Writer(out_f, compression=_COMPRESSION.get(found.compression,
                                                         CompressionType.ZSTD))
     writer.start(profile=header.profile, library=header.library)
-    schemas: dict[int, int] = {}
-    channels: dict[int, int] = {}
-    count = sum(_copy(writer, r, schemas, channels) for r in records)
+    schemas = {sid: writer.register_schema(s.name, s.encoding, s.data)
+               for sid, s in sorted(found.schemas.items())}
+    channels = {cid: writer.register_channel(c.topic, c.message_encoding,
+                                             schemas.get(c.schema_id, 0), dict(c.metadata))
+                for cid, c in sorted(found.channels.items())}
+    count = 0
+    for r in records(f, found, Budget.streaming()):
+        if isinstance(r, Message) and r.channel_id in channels:
+            writer.add_message(channels[r.channel_id], r.log_time, r.data, r.publish_time,
+                               r.sequence)
+            count += 1
+        elif isinstance(r, Metadata):
+            writer.add_metadata(r.name, dict(r.metadata))
+        elif not isinstance(r, (Header, Schema, Channel, Message)):
+            raise McapError(f'{found.path}: unexpected record {type(r).__name__}')
     writer.finish()
     return count
 
 
-def _copy(writer: Writer, r: Any, schemas: dict[int, int], channels: dict[int, int]) -> int:
-    if isinstance(r, Schema) and r.id not in schemas:
-        schemas[r.id] = writer.register_schema(r.name, r.encoding, r.data)
-    elif isinstance(r, Channel) and r.id not in channels:
-        channels[r.id] = writer.register_channel(r.topic, r.message_encoding,
-                                                 schemas.get(r.schema_id, 0), dict(r.metadata))
-    elif isinstance(r, Message) and r.channel_id in channels:
-        writer.add_message(channels[r.channel_id], r.log_time, r.data, r.publish_time,
-                           r.sequence)
-        return 1
-    elif isinstance(r, Metadata):
-        writer.add_metadata(r.name, dict(r.metadata))
-    return 0
+def _verify(tmp: str, count: int, path: Path) -> None:
+    """McapError unless ``tmp`` reads back complete, at random access, with ``count``."""
+    with open(tmp, 'rb') as f:
+        reader = make_reader(f)
+        if reader.get_summary() is None:
+            raise McapError(f'{path}: the rewritten copy has no summary; left unchanged')
+        back = sum(1 for _ in reader.iter_messages(log_time_order=False))
+    if back != count:
+        raise McapError(f'{path}: the rewritten copy reads back {back} of {count} '
+                        'messages; left unchanged')
 
 
-def repair_file(path: str | os.PathLike) -> int:
-    """Rewrite an incomplete MCAP file complete, in place; the messages it holds."""
-    path = Path(path)
-    budget = Budget(path.stat().st_size)
-    tmp = path.with_name(f'.{path.name}.reindex')
+def _indexed(f: Any, found: Scan) -> bool:
+    """Whether a random-access reader finds every message through the file's summary."""
+    f.seek(0)
     try:
-        with open(tmp, 'wb') as out_f:
-            count = _rewrite(path, out_f, budget)
+        reader = make_reader(f)
+        counts: dict[int, int] = {}
+        for _, channel, _ in reader.iter_messages(log_time_order=False):
+            counts[channel.id] = counts.get(channel.id, 0) + 1
+        stats = reader.get_summary().statistics
+    except Exception:  # noqa: BLE001 - any failure means a damaged summary or index
+        return False
+    return (counts == found.per_channel and stats is not None
+            and dict(stats.channel_message_counts) == counts)
+
+
+def _keep_original(path: Path) -> Path:
+    """Link the damaged original as ``<name>.damaged`` (or ``.damaged-N``)."""
+    for k in range(1000):
+        aside = path.with_name(f'{path.name}.damaged' + (f'-{k}' if k else ''))
+        try:
+            os.link(path, aside, follow_symlinks=False)
+            return aside
+        except FileExistsError:
+            continue
+    raise McapError(f'{path}: no free name to keep the damaged original; left unchanged')
+
+
+def repair_file(path: str | os.PathLike) -> FileRepair:
+    """Rewrite an incomplete or damaged MCAP file complete, in place; what was done."""
+    path = Path(path)
+    refuse_link(path)
+    with open_storage(path) as f:
+        found = scan(f, str(path), Budget.streaming())
+        lost, counted = found.lost()
+        result = FileRepair(path, 'intact', found.kept, found.damage, lost, counted)
+        if found.header is None and not found.kept:
+            raise McapError(f'{path}: no MCAP record can be read: not an MCAP file, or '
+                            'nothing left of one')
+        if found.footer and not found.damage and not found.orphans and _indexed(f, found):
+            return result
+        if not found.kept and found.damage:
+            result.action = 'kept'
+            return result
+        result.action = 'repaired'
+        _rewrite(path, f, found, result)
+    return result
+
+
+def _rewrite(path: Path, f: Any, found: Scan, result: FileRepair) -> None:
+    """Write the copy beside ``path``, verify it, keep a damaged original, rename."""
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f'.{path.name}.reindex.', dir=path.parent)
+    except OSError as exc:
+        raise McapError(f'{path.parent}: cannot create a file ({exc.strerror or exc}); '
+                        'left unchanged') from exc
+    try:
+        os.fchmod(fd, stat.S_IMODE(os.fstat(f.fileno()).st_mode))
+        with os.fdopen(fd, 'wb') as out_f:
+            count = _write(out_f, f, found)
             out_f.flush()
             os.fsync(out_f.fileno())
-        with open(tmp, 'rb') as f:      # read back at random access before replacing
-            back = sum(1 for _ in make_reader(f).iter_messages(log_time_order=False))
-        if back != count:
-            raise McapError(f'{path}: the rewritten file reads back {back} of {count} '
-                            'messages; left unchanged')
+        _verify(tmp, count, path)
+        if any(d.why != CUT_SHORT for d in found.damage):
+            result.kept_as = _keep_original(path)
         os.replace(tmp, path)
+        result.messages = count
     except OSError as exc:
-        raise McapError(f'{path}: cannot rewrite ({exc.strerror or exc})') from exc
+        raise McapError(f'{path}: cannot rewrite ({exc.strerror or exc}); left '
+                        'unchanged') from exc
     finally:
-        tmp.unlink(missing_ok=True)
-    return count
+        if os.path.lexists(tmp):
+            os.unlink(tmp)
 
 
-def _topic(info: Any) -> TopicInfo:
+def _topic(name: str, channel: Channel, type_name: str) -> TopicInfo:
     try:
-        qos = load_yaml(info.metadata.get('offered_qos_profiles', '') or '[]')
+        qos = load_yaml(channel.metadata.get('offered_qos_profiles', '') or '[]')
     except yaml.YAMLError:
         qos = []
-    return TopicInfo(info.name, info.type, qos if isinstance(qos, list) else [],
-                     info.metadata.get('topic_type_hash', ''), info.message_encoding)
+    return TopicInfo(name, type_name, qos if isinstance(qos, list) else [],
+                     channel.metadata.get('topic_type_hash', ''), channel.message_encoding)
 
 
-def _custom_data(files: list[FileRecording]) -> dict[str, str]:
-    for f in reversed(files):
-        text = f.metadata.get(RECORD_NAME, {}).get('serialized_metadata', '')
+def _custom_data(surveys: list[Survey]) -> dict[str, str]:
+    for s in reversed(surveys):
+        text = s.metadata.get(RECORD_NAME, {}).get('serialized_metadata', '')
         try:
             custom = (load_yaml(text) or {}).get('custom_data')
         except (yaml.YAMLError, AttributeError):
@@ -151,30 +230,52 @@ def _custom_data(files: list[FileRecording]) -> dict[str, str]:
     return {}
 
 
+@dataclass
+class ReindexResult:
+    """What ``reindex`` did."""
+
+    path: Path
+    files: list[FileRepair] = field(default_factory=list)
+    messages: int = 0
+    metadata_written: bool = False
+
+    @property
+    def repaired(self) -> list[Path]:
+        """The files rewritten."""
+        return [r.path for r in self.files if r.action == 'repaired']
+
+    @property
+    def lost(self) -> bool:
+        """Whether damage cost (or may have cost) messages, or a file could not be
+        repaired."""
+        return any(r.lost or not r.counted or r.action == 'kept' for r in self.files)
+
+
 def reindex(path: str | os.PathLike) -> ReindexResult:
-    """Repair the incomplete files of a bag directory (or one file) and write metadata.yaml."""
+    """Repair the incomplete or damaged files of a bag directory (or one file) and write
+    metadata.yaml from what they hold."""
     path = Path(path)
+    refuse_link(path)
     result = ReindexResult(path)
     probe = Recording(path=str(path))
     files = bag_files(path, probe) if path.is_dir() else [path]
     for file in files:
-        rec = Recording(path=str(file))
-        if not read_file(file, rec, Budget(file.stat().st_size)).complete:
-            result.messages += repair_file(file)
-            result.repaired.append(file)
+        result.files.append(repair_file(file))
+    result.messages = sum(r.messages for r in result.files)
     if not path.is_dir():
         return result
-    meta, read = BagMetadata(), []
-    for file in files:
-        rec = Recording(path=str(file))
-        read.append(read_file(file, rec, Budget(file.stat().st_size)))
+    meta, surveys = BagMetadata(), [survey(file) for file in files]
+    for file, found in zip(files, surveys):
         meta.files.append(FileInfo(file.name))
-        for name, info in rec.topics.items():
-            meta.topics.setdefault(name, _topic(info))
-        for m in rec.messages:
-            meta.add_message(m.topic, m.log_time)
-    meta.custom_data = _custom_data(read)
-    write_atomic(path / METADATA_FILE, meta.yaml_text())
+        for name, (channel, type_name) in found.topics.items():
+            meta.topics.setdefault(name, _topic(name, channel, type_name))
+    recount(meta, path, surveys)
+    meta.custom_data = _custom_data(surveys)
+    try:
+        write_atomic(path / METADATA_FILE, meta.yaml_text())
+    except (NotRegularFile, OSError) as exc:
+        raise McapError(f'{path / METADATA_FILE}: cannot write ({exc.strerror or exc})'
+                        ) from exc
     result.metadata_written = True
     result.messages = meta.to_dict()['message_count']
     return result

@@ -17,120 +17,60 @@ Besides, a Metadata record ``sapga`` (problem, topic roles, episode) makes a sin
 self-describing for ``sapga inspect``.
 
 Crash safety: every byte the MCAP writer emits goes to the operating system at once (no
-user-space buffering); ``flush`` closes the chunk in progress.  A writer killed with SIGKILL
-leaves files without summary and footer that stream readers read up to the last complete
-chunk, and no ``metadata.yaml``: ``sapga bag reindex`` (``repair.py``) completes them.
+user-space buffering, ``storage.py``); ``flush`` closes the chunk in progress.  A writer
+killed with SIGKILL leaves files without summary and footer that stream readers read up to
+the last complete chunk, and no ``metadata.yaml``: ``sapga bag reindex`` (``repair.py``)
+completes them.
+
+A write that fails (a full disk) is never silent: ``write`` raises McapError for that
+message and every later one until a new storage file can be written (tried every
+``RETRY_S``); ``close`` then counts in ``metadata.yaml`` what the files hold, marks the bag
+``incomplete`` in its ``custom_data`` and raises McapError.
 """
 from __future__ import annotations
 
 import os
+import stat
+import time
 from pathlib import Path
-from typing import IO, Any, Mapping
+from typing import Any, Mapping
 
-from mcap.writer import CompressionType, Writer
-
-from sapga_ros import __version__
 from sapga_ros.errors import McapError
 from sapga_ros.io.atomic import write_atomic
+from sapga_ros.recording.chunks import MAX_CHUNK_SIZE
+from sapga_ros.recording.held import recount
 from sapga_ros.recording.metadata import (METADATA_FILE, RECORD_NAME, BagMetadata, FileInfo,
-                                          TopicInfo, qos_yaml, storage_file_name)
-from sapga_ros.recording.schemas import message_definition
+                                          TopicInfo, storage_file_name)
+from sapga_ros.recording.storage import COMPRESSIONS, StorageFile
 
-PROFILE = 'ros2'
-SCHEMA_ENCODING = 'ros2msg'
 SAPGA_RECORD = 'sapga'
-LIBRARY = f'sapga_ros {__version__}'
+RETRY_S = 1.0                           # [s] between tries of a new file after a failure
 DEFAULT_CHUNK_SIZE = 64 * 1024          # [bytes] uncompressed chunk
-COMPRESSIONS = {'zstd': CompressionType.ZSTD, 'lz4': CompressionType.LZ4,
-                'none': CompressionType.NONE}
 
 
 def check_options(chunk_size: Any, compression: Any) -> None:
-    """McapError unless chunk_size is a positive int and compression is known."""
+    """McapError unless chunk_size is a positive int within the readers' chunk limit and
+    compression is known."""
     if compression not in COMPRESSIONS:
         raise McapError(f'compression {compression!r}: expected one of '
                         f'{", ".join(COMPRESSIONS)}')
     if isinstance(chunk_size, bool) or not isinstance(chunk_size, int) or chunk_size < 1:
         raise McapError(f'chunk_size {chunk_size!r}: expected a positive number of bytes')
+    if chunk_size > MAX_CHUNK_SIZE:
+        raise McapError(f'chunk_size {chunk_size}: more than {MAX_CHUNK_SIZE} bytes '
+                        f'({MAX_CHUNK_SIZE >> 20} MiB), the largest chunk every reader of '
+                        'the bag accepts')
 
 
-class _WriteThrough:
-    """A file whose every write reaches the operating system at once (survives SIGKILL)."""
-
-    def __init__(self, f: IO[bytes]) -> None:
-        self._f = f
-
-    def write(self, data: bytes) -> int:
-        n = self._f.write(data)
-        self._f.flush()
-        return n
-
-    def tell(self) -> int:
-        return self._f.tell()
-
-    def flush(self) -> None:
-        self._f.flush()
-
-
-class StorageFile:
-    """One MCAP storage file of a bag."""
-
-    def __init__(self, path: Path, chunk_size: int, compression: str) -> None:
-        self.path = path
-        try:
-            self._file = open(path, 'xb')
-        except OSError as exc:
-            raise McapError(f'{path}: cannot create ({exc.strerror or exc})') from exc
-        self._writer = Writer(_WriteThrough(self._file), chunk_size=chunk_size,
-                              compression=COMPRESSIONS[compression])
-        self._schemas: dict[str, int] = {}
-        self.channels: dict[str, int] = {}
-        self.unflushed = 0
-        self._do(self._writer.start, profile=PROFILE, library=LIBRARY)
-
-    def _do(self, action: Any, *args: Any, **kwargs: Any) -> Any:
-        try:
-            return action(*args, **kwargs)
-        except OSError as exc:
-            raise McapError(f'{self.path}: write failed ({exc.strerror or exc})') from exc
-
-    def add_metadata(self, name: str, data: Mapping[str, str]) -> None:
-        self._do(self._writer.add_metadata, name, {str(k): str(v) for k, v in data.items()})
-
-    def add_topic(self, topic: TopicInfo) -> None:
-        """The topic's schema (once per type) and channel, as the plugin's create_topic."""
-        if topic.name in self.channels:
-            return
-        schema_id = self._schemas.get(topic.type)
-        if schema_id is None:
-            schema_id = self._do(self._writer.register_schema, name=topic.type,
-                                 encoding=SCHEMA_ENCODING,
-                                 data=message_definition(topic.type).encode('utf-8'))
-            self._schemas[topic.type] = schema_id
-        self.channels[topic.name] = self._do(
-            self._writer.register_channel, topic=topic.name,
-            message_encoding=topic.serialization_format, schema_id=schema_id,
-            metadata={'offered_qos_profiles': qos_yaml(topic.offered_qos_profiles),
-                      'topic_type_hash': topic.type_description_hash})
-
-    def write(self, topic: str, data: bytes, log_time: int, publish_time: int) -> None:
-        self._do(self._writer.add_message, channel_id=self.channels[topic],
-                 log_time=int(log_time), data=bytes(data), publish_time=int(publish_time),
-                 sequence=0)
-        self.unflushed += 1
-
-    def flush(self) -> None:
-        """Close the chunk in progress; everything written so far is on the OS's side."""
-        if self.unflushed:
-            self._do(self._writer.flush)
-            self.unflushed = 0
-
-    def close(self) -> None:
-        """Summary and footer, then close the file."""
-        try:
-            self._do(self._writer.finish)
-        finally:
-            self._file.close()
+def _not_a_directory(path: Path) -> str:
+    """What is at ``path`` instead of a directory."""
+    try:
+        mode = path.stat().st_mode
+    except OSError:
+        return 'not a directory (a part of the path is a file)'
+    return ('a device, not a directory' if stat.S_ISCHR(mode) or stat.S_ISBLK(mode)
+            else 'a FIFO, not a directory' if stat.S_ISFIFO(mode)
+            else 'a file, not a directory')
 
 
 class BagWriter:
@@ -147,6 +87,13 @@ class BagWriter:
         self.path = Path(directory)
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
+        except (FileExistsError, NotADirectoryError) as exc:
+            raise McapError(f'{self.path.parent}: {_not_a_directory(self.path.parent)}; the '
+                            'bag directory cannot be made in it') from exc
+        except OSError as exc:
+            raise McapError(f'{self.path.parent}: cannot create the output directory '
+                            f'({exc.strerror or exc})') from exc
+        try:
             self.path.mkdir()
         except FileExistsError as exc:
             raise McapError(f'{self.path}: exists already; a bag is never overwritten') from exc
@@ -161,6 +108,9 @@ class BagWriter:
         self.file: StorageFile | None = None
         self.file_metadata: dict[str, str] = {}     # the open file's own sapga entries
         self.closed = False
+        self.failure: str | None = None     # the first write that failed
+        self.offered = 0                    # messages given to write()
+        self._retry_at = 0.0
         self.new_file()
 
     @property
@@ -182,32 +132,71 @@ class BagWriter:
             finally:
                 file.close()
 
+    def _failed(self, exc: McapError) -> None:
+        """A write failed: leave the file as it is (reindex completes it) and try a new
+        storage file, at most every ``RETRY_S``, once the disk takes data again."""
+        self.failure = self.failure or str(exc)
+        if self.file is not None:
+            file, self.file = self.file, None
+            file.close()
+        self._retry_at = time.monotonic() + RETRY_S
+
+    def _writable(self) -> StorageFile:
+        """The open storage file; McapError while writes fail."""
+        if self.file is None and time.monotonic() >= self._retry_at:
+            try:
+                self.new_file(self.file_metadata)
+            except McapError as exc:
+                self._failed(exc)
+        if self.file is None:
+            raise McapError(f'{self.path}: not recording since a write failed '
+                            f'({self.failure})')
+        return self.file
+
     def new_file(self, extra: Mapping[str, str] | None = None) -> Path:
         """Finish the open storage file, if any, and open the next one (a split)."""
         if self.closed:
             raise McapError(f'{self.path}: the bag is closed')
         self._finish_file()
         name = storage_file_name(self.path, len(self.metadata.files))
-        self.file = StorageFile(self.path / name, self._chunk_size, self._compression)
-        self.metadata.files.append(FileInfo(name))
         self.file_metadata = {str(k): str(v) for k, v in (extra or {}).items()}
-        self.file.add_metadata(RECORD_NAME, {'serialized_metadata': self.metadata.serialized()})
-        self.file.add_metadata(SAPGA_RECORD, {**self._common_metadata, **self.file_metadata})
-        for topic in self.metadata.topics.values():
-            self.file.add_topic(topic)
-        return self.file.path
+        try:
+            self.file = StorageFile(self.path / name, self._chunk_size, self._compression)
+            self.metadata.files.append(FileInfo(name))
+            self.file.add_metadata(RECORD_NAME, {'serialized_metadata':
+                                                 self.metadata.serialized()})
+            self.file.add_metadata(SAPGA_RECORD, {**self._common_metadata,
+                                                  **self.file_metadata})
+            for topic in self.metadata.topics.values():
+                self.file.add_topic(topic)
+        except McapError as exc:
+            self._failed(exc)
+            raise
+        return self.path / name
 
     def add_topic(self, topic: TopicInfo) -> None:
-        """Register a topic (its QoS and hash are fixed from now on for every file)."""
+        """Register a topic (its QoS and hash are fixed from now on for every file); a write
+        failure is kept for the next ``write`` to report."""
         if topic.name not in self.metadata.topics:
             self.metadata.topics[topic.name] = topic
-            self.file.add_topic(topic)
+            if self.file is not None:
+                try:
+                    self.file.add_topic(topic)
+                except McapError as exc:
+                    self._failed(exc)
 
     def write(self, topic: str, data: bytes, log_time: int, publish_time: int) -> None:
         """Append one serialized message, unchanged, to the open storage file."""
         if self.closed:
             raise McapError(f'{self.path}: write after close')
-        self.file.write(topic, data, log_time, publish_time)
+        self.offered += 1
+        file = self._writable()
+        try:
+            file.write(topic, data, log_time, publish_time)
+        except McapError as exc:
+            if file.broken:
+                self._failed(exc)
+            raise
         self.metadata.add_message(topic, int(log_time))
 
     @property
@@ -216,22 +205,37 @@ class BagWriter:
         return self.metadata.files[-1].message_count
 
     def flush(self) -> None:
+        """Close the chunk in progress; McapError if that write fails."""
         if self.file is not None:
-            self.file.flush()
+            try:
+                self.file.flush()
+            except McapError as exc:
+                self._failed(exc)
+                raise
 
     def close(self) -> None:
-        """Finish the open file and write ``metadata.yaml`` (idempotent)."""
+        """Finish the open file and write ``metadata.yaml`` (idempotent).
+
+        After a failed write, ``metadata.yaml`` counts what the files hold, its
+        ``custom_data`` says ``incomplete`` and why, and McapError says so."""
         if self.closed:
             return
         self.closed = True
         try:
             self._finish_file()
-        finally:
-            try:
-                write_atomic(self.path / METADATA_FILE, self.metadata.yaml_text())
-            except OSError as exc:
-                raise McapError(f'{self.path / METADATA_FILE}: cannot write '
-                                f'({exc.strerror or exc})') from exc
+        except McapError as exc:
+            self._failed(exc)
+        if self.failure:
+            held = recount(self.metadata, self.path)
+            self.metadata.custom_data['incomplete'] = (
+                f'{self.failure}; {held} of {self.offered} messages written')
+        try:
+            write_atomic(self.path / METADATA_FILE, self.metadata.yaml_text())
+        except OSError as exc:
+            raise McapError(f'{self.path / METADATA_FILE}: cannot write '
+                            f'({exc.strerror or exc})') from exc
+        if self.failure:
+            raise McapError(f'{self.path}: incomplete: {self.metadata.custom_data["incomplete"]}')
 
     def __enter__(self) -> BagWriter:
         return self

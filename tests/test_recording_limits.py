@@ -1,0 +1,117 @@
+"""Limits every reader and writer of recordings share: chunk sizes, memory, paths.
+
+- One chunk limit: the writer refuses a chunk_size or a message that could make a chunk
+  the readers refuse, and a bag written at the limits reads back whole, also after reindex.
+- Memory: an MCAP file of small messages packed 1000:1 takes ``sapga inspect`` to a bounded
+  peak (measured in a fresh process against a small bag, in the same run), and so does a
+  metadata.yaml of some megabytes.
+- An output directory that is a device is named as one, not as "exists already".
+"""
+from __future__ import annotations
+
+import zlib
+
+import numpy as np
+import pytest
+import zstandard
+from mcap.data_stream import RecordBuilder
+from mcap.reader import make_reader
+from mcap.records import Channel, Chunk, Header, Message, Schema
+
+from process_helpers import sapga_peak_rss
+from sapga_ros.errors import McapError
+from sapga_ros.recording.chunks import MAX_CHUNK_SIZE, MAX_MESSAGE_BYTES
+from sapga_ros.recording.metadata import TopicInfo, qos_profile
+from sapga_ros.recording.reader import read_recording
+from sapga_ros.recording.repair import reindex
+from sapga_ros.recording.schemas import message_definition, type_hash
+from sapga_ros.recording.writer import BagWriter
+from test_recording_files import MAGIC, TYPES, write_episodes
+
+BLOB = TopicInfo('/blob', 'std_msgs/msg/String', [qos_profile()],
+                 type_hash('std_msgs/msg/String'))
+
+
+def test_the_writer_makes_no_chunk_a_reader_refuses(tmp_path):
+    """chunk_size above the limit and messages above theirs are refused; a bag at both
+    limits reads back whole, and a cut copy reindexes with every complete chunk."""
+    with pytest.raises(McapError, match='chunk_size'):
+        BagWriter(tmp_path / 'a', chunk_size=MAX_CHUNK_SIZE + 1)
+    big = BagWriter(tmp_path / 'b', chunk_size=MAX_CHUNK_SIZE, compression='none')
+    big.add_topic(BLOB)
+    with pytest.raises(McapError, match='not recorded'):
+        big.write('/blob', bytes(MAX_MESSAGE_BYTES + 1), 1, 1)
+    sizes = [MAX_CHUNK_SIZE - 100, MAX_MESSAGE_BYTES, 1000, 2000]
+    for k, n in enumerate(sizes):
+        big.write('/blob', bytes([k]) * n, k + 1, k + 1)
+    big.close()
+    rec = read_recording(tmp_path / 'b')
+    assert rec.complete and [len(m.data) for m in rec.messages] == sizes
+    path = tmp_path / 'b' / 'b_0.mcap'
+    with open(path, 'rb') as f:
+        last = make_reader(f).get_summary().chunk_indexes[-1]
+    end = last.chunk_start_offset + last.chunk_length + last.message_index_length
+    with open(path, 'r+b') as f:
+        f.truncate(end)         # a killed writer: no metadata records, summary, footer
+    assert reindex(tmp_path / 'b').messages == len(sizes)
+    with open(path, 'rb') as f:
+        got = [len(m.data) for _, _, m in make_reader(f).iter_messages(log_time_order=False)]
+    assert got == sizes
+
+
+def packed_states(path, size: int) -> None:
+    """An MCAP file of about ``size`` bytes: zstd chunks of 100 000 small JointStates."""
+    js, header = TYPES.types['sensor_msgs/msg/JointState'], TYPES.types['std_msgs/msg/Header']
+    stamp = TYPES.types['builtin_interfaces/msg/Time'](1, 2)
+    cdr = bytes(TYPES.serialize_cdr(js(header(stamp, 'acrobot'), [], np.zeros(0),
+                                       np.zeros(0), np.zeros(0)), 'sensor_msgs/msg/JointState'))
+    inner = RecordBuilder()
+    Schema(id=1, name='sensor_msgs/msg/JointState', encoding='ros2msg',
+           data=message_definition('sensor_msgs/msg/JointState').encode()).write(inner)
+    Channel(id=1, topic='/joint_states', message_encoding='cdr', schema_id=1,
+            metadata={}).write(inner)
+    for k in range(100_000):
+        Message(channel_id=1, log_time=k, publish_time=k, sequence=0, data=cdr).write(inner)
+    raw = inner.end()
+    packed = zstandard.compress(raw, 19)
+    b = RecordBuilder()
+    Header(profile='ros2', library='packed').write(b)
+    while b.count < size:
+        Chunk(compression='zstd', data=packed, message_start_time=0, message_end_time=0,
+              uncompressed_crc=zlib.crc32(raw), uncompressed_size=len(raw)).write(b)
+    path.write_bytes(MAGIC + b.end())
+
+
+def test_inspect_memory_is_bounded_by_the_file_size(tmp_path):
+    """2 MiB of packed messages (each decoded by inspect) stay within 100 times the file
+    above a small bag's peak; the reading stops with a one-line warning."""
+    write_episodes(tmp_path / 'small', 1, 5).close()
+    packed_states(tmp_path / 'packed.mcap', 2 << 20)
+    rc, err, small = sapga_peak_rss(['inspect', str(tmp_path / 'small')])
+    assert rc == 0, err
+    rc, err, peak = sapga_peak_rss(['inspect', str(tmp_path / 'packed.mcap')])
+    assert rc == 0 and err.count('\n') == 1 and 'decompression bomb' in err, err
+    assert peak - small < 200, (peak, small)     # MiB; 2.3 GB before the bound
+
+
+def test_a_large_metadata_yaml_is_refused_before_it_is_parsed(tmp_path):
+    """A 3.8 MB metadata.yaml listing one file 300 000 times: refused unparsed, the file
+    read once."""
+    bag = tmp_path / 'b'
+    write_episodes(bag, 1, 5).close()
+    rc, err, small = sapga_peak_rss(['inspect', str(bag)])
+    assert rc == 0, err
+    (bag / 'metadata.yaml').write_text('rosbag2_bagfile_information:\n  relative_file_paths:\n'
+                                       + '  - b_0.mcap\n' * 300_000)
+    rc, err, peak = sapga_peak_rss(['inspect', '--json', str(bag)])
+    assert rc == 0 and 'larger than' in err and err.count('\n') == 1, err
+    assert peak - small < 50, (peak, small)
+
+
+def test_an_output_directory_that_is_a_device_is_named_as_one(tmp_path):
+    """/dev/null as the output directory: a device, not "exists already"; nothing made."""
+    with pytest.raises(McapError, match='/dev/null: a device, not a directory'):
+        BagWriter('/dev/null/bag')
+    (tmp_path / 'file').write_text('x')
+    with pytest.raises(McapError, match='a file, not a directory'):
+        BagWriter(tmp_path / 'file' / 'bag')

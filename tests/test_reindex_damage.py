@@ -1,0 +1,205 @@
+"""`sapga bag reindex` on damaged bags: a flipped byte costs its own chunk, never the rest.
+
+Real bags (this package's writer, a complete one and one whose writer was SIGKILLed) get one
+byte flipped at many positions.  The reference is the ``mcap`` library's stream reader, run
+independently of the package: it reads the damaged file record by record at the places the
+intact file's records were (``layout``), validating CRCs, and skips every record that fails.
+After reindex, ``mcap``'s random-access reader must find every message the reference still
+decodes, and nothing that was not recorded; a file that is not rewritten is left byte for
+byte as it was, and a rewritten damaged file is kept beside the repair.
+"""
+from __future__ import annotations
+
+import io
+import os
+import shutil
+from collections import Counter
+from pathlib import Path
+
+import pytest
+from mcap.reader import make_reader
+from mcap.records import Channel, Chunk, Message
+from mcap.stream_reader import StreamReader
+
+from sapga_ros.cli import main as cli
+from test_recording_files import MAGIC, killed_bag, write_episodes
+
+
+def layout(data: bytes) -> list[tuple[int, int, object]]:
+    """(start, end, record) of each top-level record of an intact (or cut) file."""
+    f = io.BytesIO(data)
+    out, pos = [], len(MAGIC)
+    try:
+        for record in StreamReader(f, emit_chunks=True).records:
+            out.append((pos, f.tell(), record))
+            pos = f.tell()
+    except Exception:  # noqa: BLE001 - a killed file ends without a footer
+        pass
+    return out
+
+
+def decodable(data: bytes, places: list[tuple[int, int, object]]) -> Counter:
+    """(topic, log_time, data) of every message the stream reader still decodes, record by
+    record, skipping what fails."""
+    channels, messages = {}, []
+    for start, end, _ in places:
+        got = []
+        try:        # a record alone: the stream ends after it, without a footer
+            for r in StreamReader(io.BytesIO(MAGIC + data[start:end]),
+                                  validate_crcs=True).records:
+                got.append(r)
+        except Exception:  # noqa: BLE001 - a damaged record, or the end: skip the rest
+            pass
+        for r in got:
+            if isinstance(r, Channel):
+                channels.setdefault(r.id, r.topic)
+            elif isinstance(r, Message):
+                messages.append(r)
+    return Counter((channels[m.channel_id], m.log_time, m.data) for m in messages
+                   if m.channel_id in channels)
+
+
+def random_access(path: Path) -> Counter:
+    with open(path, 'rb') as f:
+        reader = make_reader(f)
+        assert reader.get_summary() is not None
+        return Counter((c.topic, m.log_time, m.data)
+                       for _, c, m in reader.iter_messages(log_time_order=False))
+
+
+def positions(places: list[tuple[int, int, object]], size: int, n: int) -> list[int]:
+    """``n`` positions spread over the file, and every field of the first and last chunk's
+    record header (opcode, length, times, size, CRC, compression name)."""
+    chunks = [start for start, _, r in places if isinstance(r, Chunk)]
+    fields = (0, 1, 4, 9, 17, 25, 29, 33, 37, 41, 43, 47)
+    special = {c + k for c in (chunks[0], chunks[-1]) for k in fields}
+    return sorted(special | {len(MAGIC) + (size - len(MAGIC)) * i // n for i in range(n)})
+
+
+def check_flips(bag: Path, tmp_path: Path, n: int) -> dict[str, int]:
+    """Flip one byte of the bag's last storage file at each position; what reindex did."""
+    target = sorted(bag.glob('*.mcap'))[-1]
+    intact = target.read_bytes()
+    places = layout(intact)
+    recorded = decodable(intact, places)
+    outcomes: Counter = Counter()
+    for pos in positions(places, len(intact), n):
+        work = tmp_path / f'flip{pos}'
+        shutil.copytree(bag, work)
+        damaged = bytearray(intact)
+        damaged[pos] ^= 0xFF if pos % 3 == 0 else 1 << (pos % 8)
+        path = work / target.name
+        path.write_bytes(bytes(damaged))
+        expected = decodable(bytes(damaged), places)
+        code = cli.main(['bag', 'reindex', str(work)])
+        assert code in (0, 1), pos
+        now = path.read_bytes()
+        if now == bytes(damaged):
+            outcomes['left as it was'] += 1
+            assert code == 0 or not expected, pos
+            continue
+        got = random_access(path)
+        assert not expected - got, (pos, sum((expected - got).values()))
+        assert not got - recorded, pos          # nothing that was not recorded
+        kept = work / f'{target.name}.damaged'
+        if code == 1:
+            assert kept.read_bytes() == bytes(damaged), pos
+            outcomes['repaired, loss reported'] += 1
+        else:
+            outcomes['repaired, nothing lost'] += 1
+            assert got == recorded or not kept.exists(), pos
+    return outcomes
+
+
+def test_a_flipped_byte_in_a_complete_bag_costs_its_chunk_only(tmp_path, capsys):
+    """Every intact chunk's messages survive reindex, wherever the damage is."""
+    write_episodes(tmp_path / 'b', 3, 200, chunk_size=1024).close()
+    outcomes = check_flips(tmp_path / 'b', tmp_path, 60)
+    assert outcomes['repaired, loss reported'] >= 10, outcomes
+    err = capsys.readouterr().err
+    assert 'messages lost (/episode_event' in err or 'messages lost (/reward' in err, err
+
+
+@pytest.mark.parametrize('split', ['run', 'episode'])
+def test_a_flipped_byte_in_a_killed_bag_costs_its_chunk_only(tmp_path, split):
+    """The same after SIGKILL: no footer, no summary, no metadata.yaml."""
+    bag = killed_bag(tmp_path, split)
+    outcomes = check_flips(bag, tmp_path, 30)
+    assert outcomes['repaired, loss reported'] >= 5, outcomes
+
+
+def test_a_file_with_nothing_readable_is_left_as_it_was(tmp_path, capsys):
+    """A file whose every chunk is damaged is not replaced by an empty one: exit 1, the
+    bytes unchanged, no temporary file left."""
+    write_episodes(tmp_path / 'b', 1, 50, chunk_size=100_000).close()
+    path = tmp_path / 'b' / 'b_0.mcap'
+    data = bytearray(path.read_bytes())
+    chunk = next(start for start, _, r in layout(bytes(data)) if isinstance(r, Chunk))
+    data[chunk + 60] ^= 0xFF
+    path.write_bytes(bytes(data))
+    assert cli.main(['bag', 'reindex', str(path)]) == 1
+    assert path.read_bytes() == bytes(data)
+    assert 'left unchanged: nothing readable to keep' in capsys.readouterr().err
+    assert sorted(p.name for p in path.parent.iterdir()) == ['b_0.mcap', 'metadata.yaml']
+
+
+def test_reindex_never_follows_a_link(tmp_path, capsys):
+    """A planted link named like a temporary file is neither followed nor removed; a bag or
+    storage file that is a link is refused in one line."""
+    bag = killed_bag(tmp_path, 'run')
+    outside = tmp_path / 'outside.txt'
+    outside.write_text('precious')
+    storage = sorted(bag.glob('*.mcap'))[-1]
+    planted = bag / f'.{storage.name}.reindex'
+    planted.symlink_to(outside)
+    assert cli.main(['bag', 'reindex', str(bag)]) == 0
+    assert outside.read_text() == 'precious' and planted.is_symlink()
+    assert random_access(storage)
+    capsys.readouterr()
+    link = tmp_path / 'link'
+    link.symlink_to(bag)
+    moved = tmp_path / 'moved.mcap'
+    os.replace(storage, moved)
+    storage.symlink_to(moved)
+    for path in (link, bag, storage):
+        assert cli.main(['bag', 'reindex', str(path)]) == 2
+        err = capsys.readouterr().err
+        assert err.count('\n') == 1 and 'symbolic link' in err, err
+    assert storage.is_symlink() and outside.read_text() == 'precious'
+
+
+def test_reading_goes_on_past_a_chunk_with_damaged_contents(tmp_path):
+    """`sapga inspect`'s reader skips a chunk whose data is damaged and reads the rest: every
+    message the stream reader decodes, the file called incomplete with the byte named."""
+    from sapga_ros.recording.reader import read_recording
+
+    write_episodes(tmp_path / 'b', 3, 200, chunk_size=1024).close()
+    path = tmp_path / 'b' / 'b_0.mcap'
+    data = bytearray(path.read_bytes())
+    places = layout(bytes(data))
+    start, end, _ = [p for p in places if isinstance(p[2], Chunk)][1]
+    data[(start + end) // 2] ^= 0x04
+    path.write_bytes(bytes(data))
+    rec = read_recording(tmp_path / 'b')
+    got = Counter((m.topic, m.log_time, m.data) for m in rec.messages)
+    assert got == decodable(bytes(data), places) and 0 < len(rec.messages) < 606
+    assert not rec.complete and f'byte {start}' in rec.error and 'skipped' in rec.error
+
+
+def test_a_killed_bag_keeps_its_messages_when_the_chunk_defining_its_channels_is_lost(
+        tmp_path):
+    """The first chunk holds the channel definitions and a killed file has no summary; the
+    writer's sapga_channel records still name every channel, so reindex keeps every message
+    of the other chunks (the stream reader alone decodes none of them)."""
+    bag = killed_bag(tmp_path, 'run')
+    path = sorted(bag.glob('*.mcap'))[-1]
+    intact = path.read_bytes()
+    places = layout(intact)
+    first = next(p for p in places if isinstance(p[2], Chunk))
+    damaged = bytearray(intact)
+    damaged[(first[0] + first[1]) // 2] ^= 0x08
+    path.write_bytes(bytes(damaged))
+    assert not decodable(bytes(damaged), places)
+    assert cli.main(['bag', 'reindex', str(bag)]) == 1
+    others = decodable(intact, places) - decodable(intact, [first])
+    assert others and random_access(path) == others
