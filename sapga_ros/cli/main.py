@@ -171,6 +171,9 @@ def cmd_bench(args) -> int:
               f"core, {d['steps_per_s_all_cores'] / 1e6:6.3f} M steps/s on {d['threads']} "
               f"threads; NumPy loop: {d['numpy_steps_per_s']:8.0f} steps/s; speedup per core "
               f"{d['speedup_vs_numpy']:6.0f}x")
+        if 'numba_steps_per_s' in d:
+            print(f"{'':8s} straightforward numba kernel: {d['numba_steps_per_s'] / 1e6:6.3f} M "
+                  f"steps/s; batch per core {d['speedup_vs_numba']:5.1f}x")
     return 0
 
 
