@@ -16,7 +16,7 @@ import numpy as np
 from sim_nodes.jit import kernel
 
 
-@kernel
+@kernel(inline='always')
 def normalize_into(s, inv_range, is_angle, out):
     """out = s / range, angles wrapped to a fraction of a turn in [0, 1)."""
     for d in range(s.shape[0]):
@@ -28,7 +28,7 @@ def normalize_into(s, inv_range, is_angle, out):
         out[d] = u
 
 
-@kernel
+@kernel(inline='always')
 def sq_distances(u, ex, n, is_angle, acc):
     """acc[j] = squared normalised distance from u to exemplar j of ex[:, :n]."""
     for j in range(n):
@@ -60,7 +60,7 @@ def sq_distance(u, v, is_angle):
     return total
 
 
-@kernel
+@kernel(inline='always')
 def argmin(acc, n):
     """The lowest index of the smallest of the squared distances acc[:n] (n >= 1): what a
     scan keeping the first strict minimum returns (NaN never smaller; acc[0] NaN: 0).
@@ -82,7 +82,7 @@ def argmin(acc, n):
     return first
 
 
-@kernel
+@kernel(inline='always')
 def nearest(u, ex, n, is_angle, acc):
     """Index of the exemplar nearest to the normalised state u among ex[:, :n].
 
