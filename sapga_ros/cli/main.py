@@ -68,7 +68,8 @@ def build_parser() -> argparse.ArgumentParser:
     x.add_argument('--prune-unused', metavar='OUT.json',
                    help='write a copy without the exemplars its episode never refers to')
 
-    b = sub.add_parser('bench', help='batch evaluation speed vs a plain NumPy loop')
+    b = sub.add_parser('bench', help='batch evaluation speed vs a straightforward numba '
+                                     'kernel and a plain NumPy loop')
     b.add_argument('--json', action='store_true', help='print one JSON object')
     b.add_argument('--ros', action='store_true',
                    help='instead: the lockstep loop through DDS and the policy node\'s '
