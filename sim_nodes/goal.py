@@ -14,7 +14,7 @@ from sim_nodes.jit import kernel
 from sim_nodes.models.common import TWO_PI
 
 
-@kernel
+@kernel(inline='always')
 def circular_diff(a: float, b: float) -> float:
     """|a - b|_c: the shortest way round the circle [rad], in [0, pi]."""
     d = math.fabs(a - b)
@@ -23,7 +23,7 @@ def circular_diff(a: float, b: float) -> float:
     return TWO_PI - d if d > math.pi else d
 
 
-@kernel
+@kernel(inline='always')
 def goal_delta(s, best, inv_scale, fixed, is_angle):
     """delta(s); inv_scale is 1/scale (0 where the coordinate has a fixed bound)."""
     worst = 0.0

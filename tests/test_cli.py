@@ -125,13 +125,34 @@ def test_bad_policy_files_are_refused_by_eval(content, needle, tmp_path):
 
 
 def test_bench_json_reports_rates_and_ratio():
-    """``sapga bench --json`` prints the per-core rates and the NumPy ratio as numbers."""
+    """``sapga bench --json`` prints the per-core rates and the ratios to the NumPy loop and
+    to the straightforward numba kernel as numbers."""
     r = sapga('bench', '--json')
     assert r.returncode == 0, r.stderr
     got = json.loads(r.stdout)
     for key in ('acrobot_steps_per_s_per_core', 'pdip_steps_per_s_per_core',
-                'speedup_vs_numpy'):
+                'speedup_vs_numpy', 'numba_steps_per_s', 'speedup_vs_numba'):
         assert got[key] > 0
+    assert got['speedup_vs_numba'] == pytest.approx(
+        got['acrobot_steps_per_s_per_core'] / got['numba_steps_per_s'])
+
+
+def test_bench_yardstick_runs_the_same_episodes():
+    """The straightforward numba kernel the bench compares with runs the episodes the batch
+    kernel runs (to rounding: it uses libm's sin and cos)."""
+    import numpy as np
+
+    from sapga_ros.bench.straightforward import acrobot_arguments, episodes
+    from sapga_ros.evaluation.evaluator import Evaluator
+    from sapga_ros.optim.operators import random_exemplars
+    from sim_nodes.problem import load_problem
+    problem = load_problem('acrobot')
+    rng = np.random.default_rng(3)
+    policies = [random_exemplars(problem, 30, rng) for _ in range(4)]
+    returns, steps = episodes(*acrobot_arguments(problem, policies))
+    batch = Evaluator(problem, delta=0.0).evaluate(policies)
+    assert steps == int(batch.steps.sum()) == 4 * problem.n_step
+    assert returns == pytest.approx(batch.returns, rel=1e-9)
 
 
 def test_training_bench_measures_whole_runs_alone_and_side_by_side():

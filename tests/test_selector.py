@@ -8,7 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from sapga_ros.exemplars.distance import distances, nearest, normalize_into, normalize_states
+from sapga_ros.exemplars.distance import (argmin, distances, nearest, normalize_into,
+                                          normalize_states)
 from sim_nodes import reference
 from sim_nodes.models.common import TWO_PI
 
@@ -132,3 +133,27 @@ def test_nearest_agrees_with_the_reference_selector(problem, rng):
         normalize_into(s, inv, problem.is_angle, u)
         j = nearest(u, ex, len(states), problem.is_angle, acc)
         assert j == reference.select(problem, states, s)
+
+
+def first_strict_minimum(acc: np.ndarray) -> int:
+    """The scan the nearest-exemplar search defines: keep the first strict minimum."""
+    best = 0
+    for j in range(1, len(acc)):
+        if acc[j] < acc[best]:
+            best = j
+    return best
+
+
+def test_argmin_is_the_first_strict_minimum(rng):
+    """``argmin`` (integer passes over the bits) returns what the plain scan returns, for
+    squared distances with ties, zeros, infinities and NaNs, at every length."""
+    for n in (1, 2, 7, 8, 9, 31, 100, 257):
+        for _ in range(200):
+            acc = rng.choice([0.0, 0.25, 0.5, 1.0, 1e-300, math.inf], size=n)
+            mixed = rng.random(n) < 0.5
+            acc[mixed] = rng.random(int(mixed.sum()))
+            if rng.random() < 0.3:
+                acc[rng.integers(n)] = np.nan
+            if rng.random() < 0.1:
+                acc[rng.integers(n)] = -np.nan
+            assert argmin(acc, n) == first_strict_minimum(acc), acc

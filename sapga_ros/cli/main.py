@@ -69,7 +69,8 @@ def build_parser() -> argparse.ArgumentParser:
     x.add_argument('--prune-unused', metavar='OUT.json',
                    help='write a copy without the exemplars its episode never refers to')
 
-    b = sub.add_parser('bench', help='batch evaluation speed vs a plain NumPy loop')
+    b = sub.add_parser('bench', help='batch evaluation speed vs a straightforward numba '
+                                     'kernel and a plain NumPy loop')
     b.add_argument('--json', action='store_true', help='print one JSON object')
     b.add_argument('--ros', action='store_true',
                    help='instead: the lockstep loop through DDS and the policy node\'s '
@@ -173,6 +174,9 @@ def cmd_bench(args) -> int:
               f"core, {d['steps_per_s_all_cores'] / 1e6:6.3f} M steps/s on {d['threads']} "
               f"threads; NumPy loop: {d['numpy_steps_per_s']:8.0f} steps/s; speedup per core "
               f"{d['speedup_vs_numpy']:6.0f}x")
+        if 'numba_steps_per_s' in d:
+            print(f"{'':8s} straightforward numba kernel: {d['numba_steps_per_s'] / 1e6:6.3f} M "
+                  f"steps/s; batch per core {d['speedup_vs_numba']:5.1f}x")
     return 0
 
 

@@ -28,7 +28,7 @@ from sim_nodes.goal import goal_delta
 from sim_nodes.jit import kernel
 from sim_nodes.models.dispatch import step_lanes
 
-LANES = 8            # episodes side by side in one thread
+LANES = 16           # episodes side by side in one thread (two 8-wide vectors)
 BLOCKS_PER_THREAD = 4  # shares of a batch per thread, for load balance
 
 

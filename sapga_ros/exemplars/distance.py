@@ -16,7 +16,7 @@ import numpy as np
 from sim_nodes.jit import kernel
 
 
-@kernel
+@kernel(inline='always')
 def normalize_into(s, inv_range, is_angle, out):
     """out = s / range, angles wrapped to a fraction of a turn in [0, 1)."""
     for d in range(s.shape[0]):
@@ -28,7 +28,7 @@ def normalize_into(s, inv_range, is_angle, out):
         out[d] = u
 
 
-@kernel
+@kernel(inline='always')
 def sq_distances(u, ex, n, is_angle, acc):
     """acc[j] = squared normalised distance from u to exemplar j of ex[:, :n]."""
     for j in range(n):
@@ -60,20 +60,36 @@ def sq_distance(u, v, is_angle):
     return total
 
 
-@kernel
+@kernel(inline='always')
+def argmin(acc, n):
+    """The lowest index of the smallest of the squared distances acc[:n] (n >= 1): what a
+    scan keeping the first strict minimum returns (NaN never smaller; acc[0] NaN: 0).
+
+    Squared distances are +0, positive, inf or NaN, and such doubles order as their bit
+    patterns do as unsigned integers, NaN (of either sign) above inf.  So the smallest is
+    an unsigned integer minimum, and its first index an integer minimum: two passes
+    without branches that the compiler vectorises (a float minimum it may not reorder).
+    """
+    if not acc[0] == acc[0]:
+        return 0
+    bits = acc[:n].view(np.uint64)
+    low = bits[0]
+    for j in range(n):
+        low = min(low, bits[j])
+    first = n
+    for j in range(n):
+        first = min(first, j if bits[j] == low else n)
+    return first
+
+
+@kernel(inline='always')
 def nearest(u, ex, n, is_angle, acc):
     """Index of the exemplar nearest to the normalised state u among ex[:, :n].
 
-    ``acc`` is scratch of length >= n (squared distances).
+    ``acc`` is scratch of length >= n (squared distances).  Ties: the lowest index.
     """
     sq_distances(u, ex, n, is_angle, acc)
-    best = 0
-    best_d = acc[0]
-    for j in range(1, n):
-        if acc[j] < best_d:  # strict: ties keep the lowest index
-            best_d = acc[j]
-            best = j
-    return best
+    return argmin(acc, n)
 
 
 @kernel

@@ -44,7 +44,7 @@ def predict_into(model, s, action, p, inv_range, is_angle, w_state, w_act, w_rew
     normalize_into(w_state[:, 0], inv_range, is_angle, out)
 
 
-@kernel
+@kernel(inline='always')
 def select(style, model, s, ex, ex2, act, val, n, actions, p, inv_range, is_angle, radius2,
            goal_u, progress, used, u, acc, w_state, w_act, w_rew):
     """(exemplar index, action value, new progress) for the raw state s.
