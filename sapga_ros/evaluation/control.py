@@ -100,7 +100,7 @@ def swing_up(ctl, s):
     return 0.0
 
 
-@kernel
+@kernel(inline='always')   # inlined into the episode loop, as the selector is
 def choose(style, model, s, ex, ex2, act, val, n, actions, p, inv_range, is_angle, radius2,
            goal_u, progress, used, u, acc, w_state, w_act, w_rew, ctl, best, x):
     """(exemplar index, action value, new progress): ``select`` behind the controller
