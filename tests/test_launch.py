@@ -218,17 +218,24 @@ def test_swingup_runs_the_classical_controller_on_the_hold_task(tmp_path, capsys
     included."""
     assert cli.main(['classical', '--problem', 'acrobot_hold', '--out',
                      str(tmp_path / 'c.json')]) == 0
+    end, rewards = lockstep_hold_equals_eval('c.json', tmp_path, capsys)
+    assert end['event'] == 'step_limit' and end['step'] == 1000
+    assert len(rewards) == 1000
+    assert end['hold_fraction'] >= 0.95
+
+
+def lockstep_hold_equals_eval(policy: str, tmp_path, capsys) -> tuple[dict, list]:
+    """Deploy ``policy`` (in tmp_path) with a lockstep swingup launch of one episode; its
+    recorded end event equals sapga eval, hold measures included; (end event, rewards)."""
     capsys.readouterr()
-    done = launch(['swingup', '--policy', 'c.json', '--mode', 'lockstep', '--episodes', '1',
+    done = launch(['swingup', '--policy', policy, '--mode', 'lockstep', '--episodes', '1',
                    '--out', 'rec'], tmp_path)
     assert 'every lockstep episode is equal' in done.stdout
     (end,), rewards = recorded_episodes(the_bag(tmp_path / 'rec'))
-    expected = sapga_eval_json(tmp_path / 'c.json', capsys)
-    assert end['event'] == 'step_limit' and end['step'] == expected['steps'] == 1000
-    assert len(rewards) == 1000
-    for key in ('return', 'first_entry_step', 'hold_fraction', 'rail_contacts'):
-        assert end[key] == expected[key], key
-    assert end['hold_fraction'] >= 0.95
+    expected = sapga_eval_json(tmp_path / policy, capsys)
+    for key in ('return', 'steps', 'first_entry_step', 'hold_fraction', 'rail_contacts'):
+        assert end['step' if key == 'steps' else key] == expected[key], key
+    return end, rewards
 
 
 def test_swingup_runs_a_hybrid_policy_like_sapga_eval(tmp_path, capsys):
@@ -236,11 +243,4 @@ def test_swingup_runs_a_hybrid_policy_like_sapga_eval(tmp_path, capsys):
     node: the lockstep hold episode equals sapga eval, hold measures included."""
     assert cli.main(['train', '--problem', 'acrobot_hold', '--steps', '300000', '--seed', '1',
                      '--catch', 'lqr', '--quiet', '--out', str(tmp_path / 'h.json')]) == 0
-    capsys.readouterr()
-    done = launch(['swingup', '--policy', 'h.json', '--mode', 'lockstep', '--episodes', '1',
-                   '--out', 'rec'], tmp_path)
-    assert 'every lockstep episode is equal' in done.stdout
-    (end,), _ = recorded_episodes(the_bag(tmp_path / 'rec'))
-    expected = sapga_eval_json(tmp_path / 'h.json', capsys)
-    for key in ('return', 'steps', 'first_entry_step', 'hold_fraction', 'rail_contacts'):
-        assert end['step' if key == 'steps' else key] == expected[key], key
+    lockstep_hold_equals_eval('h.json', tmp_path, capsys)
