@@ -235,6 +235,11 @@ def test_sapga_limit_reports_and_writes_its_sequence(tmp_path, capsys):
     assert readings['alternative']['delta'] <= stored['delta']
     assert readings['printed']['rail_contacts'] == len(readings['printed']['contact_steps'])
     assert cli.main(['limit', '--replay', str(tmp_path / 'l.json'), '--problem', 'pdip']) == 2
+    assert cli.main(['limit', '--problem', 'pdip', '--alternative-goal', '--width', '300',
+                     '--out', str(tmp_path / 'a.json')]) == 0
+    capsys.readouterr()
+    assert cli.main(['limit', '--replay', str(tmp_path / 'a.json'), '--json']) == 0
+    assert json.loads(capsys.readouterr().out)[0]['searched_under'] == 'alternative'
     assert cli.main(['limit']) == 2
     assert cli.main(['limit', '--replay', str(tmp_path / 'none.json')]) == 2
     assert 'none.json' in capsys.readouterr().err

@@ -104,7 +104,7 @@ def test_the_committed_limit_sequences_replay_to_their_numbers():
     from sapga_ros.analysis.limit_file import read_limit
     from sapga_ros.analysis.limit_replay import replay
     files = sorted((Path(__file__).parents[1] / 'docs' / 'limits').glob('*.json'))
-    assert {p.name for p in files} >= {'acrobot.json', 'pdip.json'}
+    assert {p.name for p in files} >= {'acrobot.json', 'pdip.json', 'pdip-alternative.json'}
     for path in files:
         json.loads(path.read_text(), parse_constant=_refuse)   # no NaN or Infinity
         doc = read_limit(path)

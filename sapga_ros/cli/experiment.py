@@ -131,7 +131,7 @@ def cmd_limit(args) -> int:
         problem = alternative_goal(problem)
     limit = beam_limit(problem, width=args.width, cells=args.cells, per_cell=args.per_cell,
                        seed=args.seed)
-    doc = limit_document(limit)
+    doc = {**limit_document(limit), 'alternative_goal': args.alternative_goal}
     if args.out:
         write_json(Path(args.out), doc)
     if args.json:
