@@ -56,7 +56,7 @@ def _count(value: Any, where: str, low: int, high: int) -> int:
 
 _SET_KEYS = ('name', 'seeds', 'experiments', 'limits')
 _EXPERIMENT_KEYS = ('id', 'problem', 'delta', 'method', 'steps', 'style', 'paper', 'group',
-                    'variant', 'seeds')
+                    'variant', 'seeds', 'catch')
 _LIMIT_KEYS = ('problem', 'alternative_goal', 'width', 'cells', 'per_cell')
 
 
