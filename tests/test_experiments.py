@@ -9,6 +9,7 @@ from sapga_ros.training.experiment_report import resample
 from sapga_ros.training.experiment_set import load_experiments
 from sapga_ros.training.experiments import run_experiments
 from sapga_ros.viz.summary_plot import plot_summaries
+from sim_nodes.problem import load_problem
 
 
 def test_table2_defines_the_papers_four_experiments():
@@ -44,6 +45,47 @@ def test_summary_statistics_are_those_of_the_runs(tmp_path):
     assert plot_summaries(summaries, tmp_path) == [tmp_path / 'acrobot.png']
     assert (tmp_path / 'acrobot.png').stat().st_size > 10_000
     json.loads((tmp_path / 'summary.json').read_text())  # strict JSON: no NaN literals
+
+
+def wilson(k: int, n: int, z: float = 1.959963984540054) -> list[float]:
+    """The Wilson score interval, written out."""
+    p = k / n
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z / (1 + z * z / n) * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n))
+    return [centre - half, centre + half]
+
+
+def test_runs_carry_the_returned_policys_own_episode_beside_the_runs_bests(tmp_path):
+    """Each run file holds the returned policy's own value, delta*, whether it reaches
+    S_delta and its rail contacts, equal to an episode of the stored policy run here; the
+    summary averages them and gives Wilson intervals for the counts; the tables show them."""
+    from sapga_ros.evaluation.evaluator import Evaluator
+    from sapga_ros.exemplars.policy import policy_from_document
+    from sapga_ros.training.experiment_report import markdown_table
+    from sapga_ros.viz.report import table
+    summaries = run_experiments('beyond', tmp_path, only=[2], seeds=3, scale=0.01,
+                                workers=1, log=lambda *a: None)
+    runs = json.loads((tmp_path / 'runs.json').read_text())['2']
+    for r in runs:
+        ep = Evaluator(load_problem('pdip'), 0.01).episode(
+            policy_from_document(r['policy'], 'pdip', 'test'))
+        f = r['final']
+        assert (f['policy_value'], f['policy_delta_star'], f['policy_reached'],
+                f['policy_rail_contacts']) == (ep.ret, ep.delta_star, ep.reached, ep.contacts)
+        assert f['best_value'] >= f['policy_value']          # the run's best over episodes
+        assert f['delta_star'] <= f['policy_delta_star']
+    final = summaries[0]['final']
+    assert final['policy_value_mean'] == pytest.approx(
+        np.mean([r['final']['policy_value'] for r in runs]))
+    assert final['policy_reached'] == sum(r['final']['policy_reached'] for r in runs)
+    assert final['policy_rail_runs'] == sum(r['final']['policy_rail_contacts'] > 0
+                                            for r in runs)
+    assert final['achieved_ci95'] == pytest.approx(wilson(final['achieved'], 3))
+    assert final['policy_reached_ci95'] == pytest.approx(wilson(final['policy_reached'], 3))
+    assert wilson(14, 20) == pytest.approx([0.4810, 0.8545], abs=1e-4)
+    low, high = final['achieved_ci95']
+    assert f"{final['achieved']}/3 [{low:.2f}, {high:.2f}]" in markdown_table(summaries)
+    assert f"{final['policy_value_mean']:.1f} ± " in '\n'.join(table(summaries))
 
 
 def test_unknown_experiment_set_or_id_is_refused(tmp_path):
@@ -182,6 +224,25 @@ def test_sapga_limit_reports_and_writes_its_sequence(tmp_path, capsys):
     stored = json.loads((tmp_path / 'l.json').read_text())
     assert shown['delta'] == stored['delta'] and len(stored['actions']) == stored['step']
     assert cli.main(['limit', '--problem', 'acrobot', '--alternative-goal']) == 2
+    capsys.readouterr()
+    assert cli.main(['limit', '--replay', str(tmp_path / 'l.json'), '--json']) == 0
+    [replayed] = json.loads(capsys.readouterr().out)
+    readings = {r['reading']: r for r in replayed['readings']}
+    assert replayed['searched_under'] == 'printed' and set(readings) == {'printed',
+                                                                         'alternative'}
+    assert (readings['printed']['delta'], readings['printed']['step']) == \
+        (stored['delta'], stored['step'])
+    assert readings['alternative']['delta'] <= stored['delta']
+    assert readings['printed']['rail_contacts'] == len(readings['printed']['contact_steps'])
+    assert cli.main(['limit', '--replay', str(tmp_path / 'l.json'), '--problem', 'pdip']) == 2
+    assert cli.main(['limit', '--problem', 'pdip', '--alternative-goal', '--width', '300',
+                     '--out', str(tmp_path / 'a.json')]) == 0
+    capsys.readouterr()
+    assert cli.main(['limit', '--replay', str(tmp_path / 'a.json'), '--json']) == 0
+    assert json.loads(capsys.readouterr().out)[0]['searched_under'] == 'alternative'
+    assert cli.main(['limit']) == 2
+    assert cli.main(['limit', '--replay', str(tmp_path / 'none.json')]) == 2
+    assert 'none.json' in capsys.readouterr().err
 
 
 def test_q_learning_seeds_run_side_by_side_equal_their_runs_alone(tmp_path):

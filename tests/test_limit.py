@@ -1,5 +1,7 @@
 """The physical-limit search (sapga_ros/analysis/limit.py): exhaustive when the beam holds
-every sequence, its answer replays through the model, deterministic in its seed."""
+every sequence, its answer replays through the model, deterministic in its seed; the
+replay (sapga_ros/analysis/limit_replay.py) scores a sequence under every goal reading and
+counts its rail contacts; the committed sequences of docs/limits replay to their numbers."""
 from __future__ import annotations
 
 import itertools
@@ -55,3 +57,57 @@ def test_a_wider_goal_box_never_makes_the_limit_larger():
     assert wide.goal_scale[1] == 32.0
     s = np.array([0.1, 0.5, 1.6, 1.5, 0.2, -0.1])
     assert delta_of(wide, s) <= delta_of(problem, s)
+
+
+def test_a_replay_scores_the_searchs_sequence_under_every_goal_reading():
+    """The sequence a search found replays to the search's delta and step under the reading
+    it was searched under; under the wider |v| <= 32 delta box it is no larger."""
+    from sapga_ros.analysis.limit_replay import replay
+    problem = load_problem('pdip')
+    found = beam_limit(problem, n_step=60, width=400, cells=16, seed=1)
+    scores = {r.reading: r for r in replay(problem, found.actions)}
+    assert set(scores) == {'printed', 'alternative'}
+    assert (scores['printed'].delta, scores['printed'].step) == (found.delta, found.step)
+    assert scores['alternative'].delta <= found.delta
+    assert [r.reading for r in replay(load_problem('acrobot'), found.actions[:5])] == \
+        ['printed']
+
+
+def test_rail_contacts_are_the_steps_that_stopped_the_cart_at_the_rail():
+    """Pushing one way drives the cart into the rail: every contact step counted leaves the
+    cart at the rail end at rest (the free brake), no other step does; no force, no
+    contact."""
+    from sapga_ros.analysis.limit_replay import replay
+    problem = load_problem('pdip')
+    x_max = 2.5                                   # msg_configs/pdip.yaml: rail end
+    push = [40.0] * 40
+    s, at_rail = problem.initial_state.copy(), []
+    for t, a in enumerate(push, 1):
+        model_module(problem.model).mdp_step(s, a, problem.params())
+        if abs(s[0]) == x_max and s[1] == 0.0:
+            at_rail.append(t)
+    last = max(replay(problem, push), key=lambda r: r.step)
+    assert at_rail and last.contact_steps == tuple(t for t in at_rail if t <= last.step)
+    assert all(r.rail_contacts == 0 for r in replay(problem, [0.0] * 40))
+
+
+def _refuse(name: str):
+    raise ValueError(f'{name} is not strict JSON')
+
+
+def test_the_committed_limit_sequences_replay_to_their_numbers():
+    """docs/limits/*.json (the sequences docs/reproduction.md reports) are strict JSON and
+    each replays to the delta and step it records under the reading it was searched under."""
+    import json
+    from pathlib import Path
+
+    from sapga_ros.analysis.limit_file import read_limit
+    from sapga_ros.analysis.limit_replay import replay
+    files = sorted((Path(__file__).parents[1] / 'docs' / 'limits').glob('*.json'))
+    assert {p.name for p in files} >= {'acrobot.json', 'pdip.json', 'pdip-alternative.json'}
+    for path in files:
+        json.loads(path.read_text(), parse_constant=_refuse)   # no NaN or Infinity
+        doc = read_limit(path)
+        reading = 'alternative' if doc['alternative_goal'] else 'printed'
+        got = {r.reading: r for r in replay(load_problem(doc['problem']), doc['actions'])}
+        assert (got[reading].delta, got[reading].step) == (doc['delta'], doc['step']), path

@@ -6,6 +6,7 @@ and the physical limit of a problem.
     sapga experiment report DIR
     sapga limit --problem P [--alternative-goal] [--width W] [--cells C] [--per-cell K]
                 [--seed S] [--json] [--out FILE.json]
+    sapga limit --replay FILE.json [FILE.json ...] [--json]
 """
 from __future__ import annotations
 
@@ -94,7 +95,10 @@ def cmd_experiment(args) -> int:
 
 
 def add_limit_arguments(li: argparse.ArgumentParser) -> None:
-    li.add_argument('--problem', required=True, help='problem name')
+    li.add_argument('--problem', help='problem name (the search)')
+    li.add_argument('--replay', nargs='+', metavar='FILE',
+                    help='instead of a search: replay the action sequences of these limit '
+                         'files under every goal reading (delta, step, rail contacts)')
     li.add_argument('--alternative-goal', action='store_true',
                     help='use the problem\'s alternative goal reading (PDIP: |v| <= 32 delta)')
     li.add_argument('--width', type=positive_int, default=50_000, help='beam width')
@@ -113,6 +117,13 @@ def cmd_limit(args) -> int:
     from sapga_ros.io.jsonfile import dumps, write_json
     from sim_nodes.goal import alternative_goal
     from sim_nodes.problem import load_problem
+    if args.replay:
+        if args.problem or args.out or args.alternative_goal:
+            raise SapgaError('--replay takes the problem and goal from its files (no '
+                             '--problem, --alternative-goal or --out)')
+        return _replay(args.replay, args.json)
+    if not args.problem:
+        raise SapgaError('limit needs --problem NAME (a search) or --replay FILE')
     problem = load_problem(args.problem)
     if args.alternative_goal:
         if alternative_goal(problem) is None:
@@ -120,7 +131,7 @@ def cmd_limit(args) -> int:
         problem = alternative_goal(problem)
     limit = beam_limit(problem, width=args.width, cells=args.cells, per_cell=args.per_cell,
                        seed=args.seed)
-    doc = limit_document(limit)
+    doc = {**limit_document(limit), 'alternative_goal': args.alternative_goal}
     if args.out:
         write_json(Path(args.out), doc)
     if args.json:
@@ -129,4 +140,35 @@ def cmd_limit(args) -> int:
         print(f'{problem.name}: smallest delta found {limit.delta:.6f} at step {limit.step} '
               f'({limit.steps_simulated:,d} MDP steps simulated; width {limit.width}, '
               f'{limit.cells} cells per coordinate)')
+    return 0
+
+
+def _replay(files: list[str], as_json: bool) -> int:
+    """``sapga limit --replay``: each file's sequence scored under every goal reading."""
+    from sapga_ros.analysis.limit_file import read_limit
+    from sapga_ros.analysis.limit_replay import replay
+    from sapga_ros.io.jsonfile import dumps
+    from sim_nodes.problem import load_problem
+    found = []
+    for name in files:
+        doc = read_limit(name)
+        scores = replay(load_problem(doc['problem']), doc['actions'])
+        found.append((name, doc, scores))
+    if as_json:
+        print(dumps([{'file': name, 'problem': doc['problem'],
+                      'searched_under': 'alternative' if doc['alternative_goal'] else 'printed',
+                      'steps': doc['step'],
+                      'readings': [{'reading': r.reading, 'delta': r.delta, 'step': r.step,
+                                    'rail_contacts': r.rail_contacts,
+                                    'contact_steps': list(r.contact_steps)} for r in scores]}
+                     for name, doc, scores in found]))
+        return 0
+    for name, doc, scores in found:
+        under = 'alternative' if doc['alternative_goal'] else 'printed'
+        print(f"{name}: {doc['problem']}, {doc['step']} actions, searched under the "
+              f'{under} goal box')
+        for r in scores:
+            where = ', '.join(map(str, r.contact_steps)) if r.contact_steps else '-'
+            print(f'  {r.reading:<11} delta {r.delta:.6f} at step {r.step}; rail contacts '
+                  f'before it: {r.rail_contacts} (steps {where})')
     return 0

@@ -13,6 +13,7 @@
     sapga experiment report DIR
     sapga classical --problem P --out FILE.json [--gain NAME=V ...] [--c C]
     sapga limit --problem P [--alternative-goal] [--width W] [--json] [--out FILE]
+    sapga limit --replay FILE.json [FILE.json ...] [--json]
     sapga launch NAME ... [--namespace NS] [--remap FROM:=TO ...] [--ros-args ...]
     sapga --version
 

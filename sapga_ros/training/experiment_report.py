@@ -67,6 +67,7 @@ def summarise(exp: Experiment, runs: Iterable[dict], budget: int) -> dict:
              'runs': len(finals),
              'best_value_ci95': bootstrap_ci(best_final),
              'delta_star_ci95': bootstrap_ci(dstar_final)}
+    final['achieved_ci95'] = wilson_ci(final['achieved'], len(finals))
     for key in ('delta_star_alt', 'greedy_delta_star'):
         values = [f[key] for f in finals if f.get(key) is not None and math.isfinite(f[key])]
         if finals and len(values) == len(finals):
@@ -75,6 +76,9 @@ def summarise(exp: Experiment, runs: Iterable[dict], budget: int) -> dict:
                           f'{key}_ci95': bootstrap_ci(values)})
             if key == 'delta_star_alt':
                 final['achieved_alt'] = sum(_reaches(v, exp.delta) for v in values)
+                final['achieved_alt_ci95'] = wilson_ci(final['achieved_alt'], len(finals))
+    if finals and all('policy_value' in f for f in finals):
+        final.update(returned_summary(finals))
     if all('hold_fraction' in f for f in finals):
         final.update(hold_summary(finals))
     return {'id': exp.id, 'problem': exp.problem, 'method': exp.method, 'delta': exp.delta,
@@ -107,6 +111,49 @@ def bootstrap_ci(values: list[float], level: float = 0.95, resamples: int = 10_0
     return [float(np.quantile(means, tail)), float(np.quantile(means, 1.0 - tail))]
 
 
+def wilson_ci(successes: int, runs: int, level: float = 0.95) -> list[float] | None:
+    """Wilson score interval of a success fraction (None for no runs)."""
+    if runs <= 0:
+        return None
+    from scipy.stats import binomtest
+    ci = binomtest(successes, runs).proportion_ci(confidence_level=level, method='wilson')
+    return [float(ci.low), float(ci.high)]
+
+
+def returned_summary(finals: list[dict]) -> dict:
+    """The returned policies' own episodes over the runs: value and delta* (mean, std, 95 %
+    bootstrap interval), the runs whose policy reaches S_delta (with a Wilson interval), the
+    runs whose policy touches the rail and the mean number of contacts."""
+    out = {}
+    for key in ('policy_value', 'policy_delta_star'):
+        values = [f[key] for f in finals]
+        mean, std = _mean_std(values)
+        out.update({f'{key}_mean': mean, f'{key}_std': std, f'{key}_ci95': bootstrap_ci(values)})
+    reached = sum(bool(f['policy_reached']) for f in finals)
+    contacts = [f['policy_rail_contacts'] for f in finals]
+    return {**out, 'policy_reached': reached, 'policy_reached_ci95': wilson_ci(reached,
+                                                                               len(finals)),
+            'policy_rail_runs': sum(c > 0 for c in contacts),
+            'policy_rail_contacts_mean': float(np.mean(contacts))}
+
+
+def count_text(count: int, runs: int, final: dict, key: str = 'achieved') -> str:
+    """'k/n [low, high]' with the Wilson interval of ``final[key + '_ci95']``."""
+    ci = final.get(f'{key}_ci95')
+    return f'{count}/{runs}' + (f' [{ci[0]:.2f}, {ci[1]:.2f}]' if ci else '')
+
+
+def returned_text(final: dict) -> str:
+    """The returned policies' own measures for a table cell ('n/a' for runs that predate
+    them)."""
+    if 'policy_value_mean' not in final:
+        return 'n/a'
+    return (f"{final['policy_value_mean']:.1f} ± {final['policy_value_std']:.1f}, "
+            f"{final['policy_delta_star_mean']:.4f} ± {final['policy_delta_star_std']:.4f}, "
+            f"{count_text(final['policy_reached'], final['runs'], final, 'policy_reached')}, "
+            f"{final['policy_rail_contacts_mean']:.1f} (in {final['policy_rail_runs']} runs)")
+
+
 def hold_summary(finals: list[dict]) -> dict:
     """The hold task's measures over the runs: hold fraction (mean, std, 95 % interval),
     runs holding >= 0.95, runs holding >= 0.9 with no rail contact, first entry step (mean
@@ -124,15 +171,18 @@ def hold_summary(finals: list[dict]) -> dict:
 
 def markdown_table(summaries: list[dict]) -> str:
     """The final measures of each experiment as a Markdown table."""
-    lines = ['| # | problem | delta | method | style | steps | achieved | best value | '
-             'delta* | steps/s (one run) |', '|---|---|---|---|---|---|---|---|---|---|']
+    lines = ['| # | problem | delta | method | style | steps | achieved [95 % CI] | '
+             'run best value | run delta* | returned policy: value, delta*, reaches, '
+             'rail contacts | steps/s (one run) |',
+             '|---|---|---|---|---|---|---|---|---|---|---|']
     for s in summaries:
         f = s['final']
         style = s.get('style', 'state-action') if s['method'] == 'sapga' else '-'
         lines.append(f"| {s['id']} | {s['problem']} | {s['delta']} | {s['method']} | {style} "
-                     f"| {s['steps']:,d} | {f['achieved']}/{f['runs']} "
+                     f"| {s['steps']:,d} | {count_text(f['achieved'], f['runs'], f)} "
                      f"| {f['best_value_mean']:.1f} ± {f['best_value_std']:.1f} "
                      f"| {f['delta_star_mean']:.4f} ± {f['delta_star_std']:.4f} "
+                     f'| {returned_text(f)} '
                      f"| {s.get('timing', {}).get('steps_per_s_mean', math.nan) / 1e3:,.0f} k |")
     held = [s for s in summaries if 'holding' in s['final']]
     if held:

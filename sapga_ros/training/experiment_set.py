@@ -243,15 +243,29 @@ def _run(exp: Experiment, seed: int, policy: Any, hist: list[dict], wall: float,
            'best_value': [r['best_value'] for r in hist],
            'delta_star': [r['delta_star'] for r in hist], 'final': final,
            'seconds': wall * last['steps'] / max(total, 1), 'lanes': lanes}
-    if not load_problem(exp.problem).ends_in_goal:   # the hold task's measures
-        from sapga_ros.training.loop import hold_of
-        final.update(hold_of(policy, exp.delta))
+    final.update(returned_measures(policy, exp.delta, load_problem(exp.problem).ends_in_goal))
     if exp.method == 'ql':
         final['greedy_delta_star'] = policy.meta.get('delta_star')
         final['greedy_value'] = policy.meta.get('value')
     else:
         run['policy'] = policy.to_document()
     return run
+
+
+def returned_measures(policy: Any, delta: float, ends_in_goal: bool = True) -> dict:
+    """The returned policy's own episode at ``delta``: its value (``policy_value``), its
+    delta* (``policy_delta_star``), whether it reaches S_delta (``policy_reached``) and its
+    end-stop contacts (``policy_rail_contacts``); for the hold task also the hold measures.
+    A run's ``best_value`` and ``delta_star`` are the bests over every episode the run
+    evaluated, which need not be this policy's."""
+    from sapga_ros.evaluation.any_policy import run_policy_episode
+    from sapga_ros.training.loop import HOLD_KEYS
+    own = run_policy_episode(policy, delta).summary()
+    out = {'policy_value': own['return'], 'policy_delta_star': own['delta_star'],
+           'policy_reached': bool(own['reached']), 'policy_rail_contacts': own['rail_contacts']}
+    if not ends_in_goal:                               # the hold task's measures
+        out.update({k: own[k] for k in HOLD_KEYS})
+    return out
 
 
 def _classical(exp: Experiment) -> tuple[Any, list[dict]]:

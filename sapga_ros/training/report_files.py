@@ -39,7 +39,8 @@ def _final(doc: Any, where: str, runs_max: int) -> dict:
         'achieved': schema.integer(schema.field(f, 'achieved', where), f'{where}.achieved',
                                    0, runs_max),
         'runs': schema.integer(schema.field(f, 'runs', where), f'{where}.runs', 0, runs_max)}
-    for key in ('best_value', 'delta_star', 'delta_star_alt', 'greedy_delta_star'):
+    for key in ('best_value', 'delta_star', 'delta_star_alt', 'greedy_delta_star',
+                'policy_value', 'policy_delta_star'):
         if key == 'best_value' or key == 'delta_star' or f'{key}_mean' in f:
             for part in ('mean', 'std'):
                 name = f'{key}_{part}'
@@ -49,6 +50,17 @@ def _final(doc: Any, where: str, runs_max: int) -> dict:
     if 'delta_star_alt_mean' in out:
         out['achieved_alt'] = schema.integer(schema.field(f, 'achieved_alt', where),
                                              f'{where}.achieved_alt', 0, runs_max)
+    for key in ('achieved', 'achieved_alt', 'policy_reached'):
+        if f.get(f'{key}_ci95') is not None:           # Wilson intervals of the counts
+            out[f'{key}_ci95'] = schema.numbers(f[f'{key}_ci95'], f'{where}.{key}_ci95', 2,
+                                                length=2, low=0, high=1)
+    if 'policy_value_mean' in out:                   # the returned policies' own episodes
+        for key in ('policy_reached', 'policy_rail_runs'):
+            out[key] = schema.integer(schema.field(f, key, where), f'{where}.{key}', 0,
+                                      runs_max)
+        out['policy_rail_contacts_mean'] = schema.number(
+            schema.field(f, 'policy_rail_contacts_mean', where),
+            f'{where}.policy_rail_contacts_mean', low=0)
     return out
 
 

@@ -56,6 +56,17 @@ def check_run(doc: Any, where: str, seed: int | None = None) -> dict:
     for key in ('steps_per_s', 'delta_star_alt', 'greedy_delta_star', 'greedy_value'):
         if key in f:
             final[key] = schema.number(f[key], f'{fw}.{key}', null=True)
+    if 'policy_value' in f:        # the returned policy's own episode
+        final['policy_value'] = schema.number(f['policy_value'], f'{fw}.policy_value',
+                                              null=True)
+        final['policy_delta_star'] = schema.number(
+            schema.field(f, 'policy_delta_star', fw), f'{fw}.policy_delta_star', low=0,
+            null=True)
+        final['policy_reached'] = schema.boolean(schema.field(f, 'policy_reached', fw),
+                                                 f'{fw}.policy_reached')
+        final['policy_rail_contacts'] = schema.integer(
+            schema.field(f, 'policy_rail_contacts', fw), f'{fw}.policy_rail_contacts', 0,
+            MAX_COUNT)
     if 'hold_fraction' in f:       # the hold measures of the returned policy's episode
         final['hold_fraction'] = schema.number(f['hold_fraction'], f'{fw}.hold_fraction',
                                                low=0, high=1)

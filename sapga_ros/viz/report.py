@@ -18,6 +18,7 @@ from sapga_ros.evaluation.evaluator import Evaluator
 from sapga_ros.analysis.limit_file import delta_text, read_limit
 from sapga_ros.io.atomic import save_figure, write_atomic
 from sapga_ros.policies.runnable import policy_from_document
+from sapga_ros.training.experiment_report import count_text
 from sapga_ros.training.report_files import read_info, read_summary
 from sapga_ros.training.run_files import read_run, run_path
 
@@ -44,23 +45,42 @@ def _row(s: dict) -> str:
     alt = ''
     if 'delta_star_alt_mean' in f:
         alt = (f"{_pm(f['delta_star_alt_mean'], f['delta_star_alt_std'], 4)}, achieved "
-               f"{f['achieved_alt']}/{f['runs']}")
+               f"{count_text(f['achieved_alt'], f['runs'], f, 'achieved_alt')}")
     greedy = _pm(f.get('greedy_delta_star_mean'), f.get('greedy_delta_star_std'), 4) \
         if 'greedy_delta_star_mean' in f else ''
     return (f"| #{s['id']} | {s['problem']}, δ = {s['delta']} | {method} | {s['steps']:,d} | "
-            f"{s.get('paper', '')} | **{f['achieved']}/{f['runs']}** | "
+            f"{s.get('paper', '')} | **{count_text(f['achieved'], f['runs'], f)}** | "
             f"{_pm(f['delta_star_mean'], f['delta_star_std'], 4)} "
             f"{_ci(f.get('delta_star_ci95'), 4)} | "
             f"{_pm(f['best_value_mean'], f['best_value_std'], 1)} "
             f"{_ci(f.get('best_value_ci95'), 1)} | {alt} | {greedy} |")
 
 
+def _returned_row(s: dict) -> str:
+    f = s['final']
+    if 'policy_value_mean' not in f:
+        return f"| #{s['id']} | {s['problem']} | n/a (runs from before these measures) |"
+    return (f"| #{s['id']} | {s['problem']}, δ = {s['delta']} | "
+            f"{_pm(f['policy_value_mean'], f['policy_value_std'], 1)} "
+            f"{_ci(f.get('policy_value_ci95'), 1)} | "
+            f"{_pm(f['policy_delta_star_mean'], f['policy_delta_star_std'], 4)} "
+            f"{_ci(f.get('policy_delta_star_ci95'), 4)} | "
+            f"{count_text(f['policy_reached'], f['runs'], f, 'policy_reached')} | "
+            f"{f['policy_rail_runs']}/{f['runs']} ({f['policy_rail_contacts_mean']:.1f}) |")
+
+
 def table(summaries: list[dict]) -> list[str]:
-    """The results table: the paper's claim beside ours, per experiment."""
-    head = ['| # | problem | method | steps | paper | achieved | δ* (mean ± std, 95 % CI) | '
-            'best value (mean ± std, 95 % CI) | δ* under \\|v\\| ≤ 32δ | QL greedy δ* |',
-            '|---|---|---|---|---|---|---|---|---|---|']
-    return head + [_row(s) for s in summaries]
+    """The results table: the paper's claim beside ours, per experiment (achieved: runs
+    whose delta* over every episode they evaluated reached delta, with a Wilson 95 %
+    interval), then the returned policies' own episodes."""
+    head = ['| # | problem | method | steps | paper | achieved [95 % CI] | run δ* (mean ± std, '
+            '95 % CI) | run best value (mean ± std, 95 % CI) | δ* under \\|v\\| ≤ 32δ | '
+            'QL greedy δ* |', '|---|---|---|---|---|---|---|---|---|---|']
+    own = ['', 'The returned policy of each run, its own episode (not the run\'s bests):', '',
+           '| # | problem | value (mean ± std, 95 % CI) | δ* (mean ± std, 95 % CI) | '
+           'reaches S_δ [95 % CI] | runs with rail contacts (mean contacts) |',
+           '|---|---|---|---|---|---|']
+    return head + [_row(s) for s in summaries] + own + [_returned_row(s) for s in summaries]
 
 
 def _best_runs(out: Path, summary: dict, count: int) -> list[tuple[dict, dict]]:
@@ -174,18 +194,38 @@ def figure5(out: Path) -> list[str]:
 
 
 def limits(out: Path) -> list[str]:
-    """The physical limits found (``sapga limit --out DIR/limits/NAME.json``)."""
+    """The physical limits found (``sapga limit --out DIR/limits/NAME.json``): every
+    search's sequence scored under every goal reading (``sapga limit --replay``), with its
+    rail contacts, then per problem and reading the best over all searches."""
+    from sapga_ros.analysis.limit_replay import replay
+    from sim_nodes.problem import load_problem
     files = sorted((out / 'limits').glob('*.json')) if (out / 'limits').is_dir() else []
     if not files:
         return []
-    lines = ['| problem | goal box | smallest δ found | at step | search |',
-             '|---|---|---|---|---|']
+    lines = ['| search | searched under | δ as printed (step) | δ alternative (step) | '
+             'rail contacts on the way (steps) | beam |', '|---|---|---|---|---|---|']
+    best: dict[tuple[str, str], tuple] = {}
     for path in files:
         d = read_limit(path)
-        box = 'alternative (\\|v\\| ≤ 32δ)' if d['alternative_goal'] else 'as printed'
-        lines.append(f"| {d['problem']} | {box} | {delta_text(d['delta'])} | {d['step']} "
-                     f"| beam {d['width']:,d}, {d['cells']} cells, "
-                     f"{d['steps_simulated']:,d} steps |")
+        scores = {r.reading: r for r in replay(load_problem(d['problem']), d['actions'])}
+        for r in scores.values():
+            key = (d['problem'], r.reading)
+            if key not in best or r.delta < best[key][0].delta:
+                best[key] = (r, path.name)
+        cells = [f'{delta_text(scores[k].delta)} ({scores[k].step})' if k in scores else '–'
+                 for k in ('printed', 'alternative')]
+        last = max(scores.values(), key=lambda r: r.step)
+        contacts = ', '.join(map(str, last.contact_steps)) or '-'
+        under = 'alternative (\\|v\\| ≤ 32δ)' if d['alternative_goal'] else 'as printed'
+        lines.append(f"| {d['problem']} (`{path.name}`) | {under} | {cells[0]} | {cells[1]} "
+                     f"| {last.rail_contacts} ({contacts}) | {d['width']:,d} wide, "
+                     f"{d['cells']} cells, {d['steps_simulated']:,d} steps |")
+    lines += ['', 'Best over all searches (upper bounds: what a search found):', '',
+              '| problem | goal box | smallest δ found | at step | from | rail contacts |',
+              '|---|---|---|---|---|---|']
+    for (problem, reading), (r, name) in sorted(best.items()):
+        lines.append(f'| {problem} | {reading} | {delta_text(r.delta)} | {r.step} | '
+                     f'`{name}` | {r.rail_contacts} |')
     return lines + ['']
 
 
