@@ -60,7 +60,7 @@ def test_runs_carry_the_returned_policys_own_episode_beside_the_runs_bests(tmp_p
     S_delta and its rail contacts, equal to an episode of the stored policy run here; the
     summary averages them and gives Wilson intervals for the counts; the tables show them."""
     from sapga_ros.evaluation.evaluator import Evaluator
-    from sapga_ros.exemplars.policy import policy_from_document
+    from sapga_ros.policies.runnable import policy_from_document
     from sapga_ros.training.experiment_report import markdown_table
     from sapga_ros.viz.report import table
     summaries = run_experiments('beyond', tmp_path, only=[2], seeds=3, scale=0.01,

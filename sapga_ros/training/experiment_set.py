@@ -258,7 +258,7 @@ def returned_measures(policy: Any, delta: float, ends_in_goal: bool = True) -> d
     end-stop contacts (``policy_rail_contacts``); for the hold task also the hold measures.
     A run's ``best_value`` and ``delta_star`` are the bests over every episode the run
     evaluated, which need not be this policy's."""
-    from sapga_ros.evaluation.any_policy import run_policy_episode
+    from sapga_ros.evaluation.evaluator import run_policy_episode
     from sapga_ros.training.loop import HOLD_KEYS
     own = run_policy_episode(policy, delta).summary()
     out = {'policy_value': own['return'], 'policy_delta_star': own['delta_star'],
