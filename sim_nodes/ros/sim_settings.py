@@ -13,7 +13,8 @@ step per tick of wall time / ``real_time_factor``, zero-order hold on the latest
 ``republish_period`` (lockstep: the waiting state again, same stamp), ``publish_clock``
 (false for all but one of several simulators in one domain), ``markers``, ``qos_profile``
 (read-only; ``sensor_data``: best effort, depth 5, for realtime runs), and the recorder
-gate's ``wait_for_recorder`` and ``recorder_timeout`` (``recorder_gate.py``).
+gate's ``wait_for_recorder`` and ``recorder_timeout`` (``recorder_gate.py``), ``engine``
+(read-only; ``kernel`` or ``mujoco``) and ``effort_topic`` (``mujoco_engine.py``).
 """
 from __future__ import annotations
 
@@ -25,6 +26,7 @@ from rclpy.node import Node
 from sim_nodes.params import DELTA, N_STEP, Param
 from sim_nodes.problem import Problem
 from sim_nodes.ros.common import QOS_PROFILES
+from sim_nodes.ros.mujoco_engine import EFFORT_TOPIC, ENGINES
 from sim_nodes.ros.params import check, declare
 from sim_nodes.ros.recorder_gate import gate_parameters
 
@@ -67,7 +69,16 @@ def sim_parameters(default_problem: str) -> list[Param]:
         Param('markers', True, 'publish the pendulum as visualization_msgs/MarkerArray'),
         Param('qos_profile', 'reliable', 'reliable (the problem ros.qos) | sensor_data (best '
               'effort)', choices=QOS_PROFILES, read_only=True),
-        *gate_parameters()]
+        *gate_parameters(), *engine_parameters()]
+
+
+def engine_parameters() -> list[Param]:
+    """The physics engine: the compiled kernel, or MuJoCo (``mujoco_engine.py``)."""
+    return [Param('engine', 'kernel', 'kernel: the compiled model, as the evaluator; mujoco: '
+                  'the MuJoCo robot (its own joint names and angle zero)', choices=ENGINES,
+                  read_only=True),
+            Param('effort_topic', EFFORT_TOPIC, 'engine mujoco: the std_msgs/Float64MultiArray '
+                  'effort command (one value per actuator)', read_only=True)]
 
 
 _CHECKED = sim_parameters('acrobot')    # ranges and choices do not depend on the problem
@@ -81,7 +92,7 @@ def check_setting(name: str, value: Any) -> str | None:
 def declare_settings(node: Node, problem: Problem) -> str:
     """Declare the simulator's parameters but ``problem`` (declared first, to read it) and
     the recorder gate's; return the (read-only) qos_profile."""
-    gate = {p.name for p in gate_parameters()}
+    gate = {p.name for p in gate_parameters() + engine_parameters()}
     table = [p for p in sim_parameters(problem.name) if p.name != 'problem' and
              p.name not in gate]
     return declare(node, table, problem)['qos_profile']
