@@ -85,8 +85,10 @@ def test_a_fake_robot_with_foreign_joints_and_no_velocities_is_driven(ros, tmp_p
     assert pol.robot.estimated == len(positions)
     for k, effort in enumerate(robot.efforts):     # the state as the node must have seen it
         theta = np.array(OFFSETS) + np.array(DIRECTIONS) * positions[k]
-        rate = (np.zeros(2) if k == 0 else
-                np.array(DIRECTIONS) * (positions[k] - positions[k - 1]) / 0.05)
+        q = positions
+        rate = np.array(DIRECTIONS) * (               # backward differences, 2nd order
+            np.zeros(2) if k == 0 else (q[k] - q[k - 1]) / 0.05 if k == 1 else
+            (3 * q[k] - 4 * q[k - 1] + q[k - 2]) / 0.1)
         _, action = expected_action(policy, np.concatenate([theta, rate]))
         assert len(effort) == 3 and effort[0] == effort[2] == 0.0
         assert effort[1] == pytest.approx(DIRECTIONS[1] * action), k

@@ -123,6 +123,7 @@ class RobotState:
         self._names: list[str] = []
         self._where: list[int] = []
         self._last: tuple[int, np.ndarray] | None = None     # (stamp, state) for differences
+        self._before: tuple[int, np.ndarray] | None = None   # and the one before it
         self.estimated = 0              # states whose velocities were estimated
 
     def _index(self, names: list[str]) -> list[int]:
@@ -168,18 +169,31 @@ class RobotState:
         return s
 
     def _differences(self, s: np.ndarray, stamp: int) -> None:
-        last, self._last = self._last, (stamp, s.copy())
+        """Velocities of the quadratic through the last three positions at ``stamp`` (the
+        second-order backward difference; first order after one message, 0 on the first
+        or when the stamps do not increase)."""
+        last, before = self._last, self._before
         self.estimated += 1
-        dt = (stamp - last[0]) * 1e-9 if last is not None else 0.0
+        h2 = (stamp - last[0]) * 1e-9 if last is not None else 0.0
+        h1 = (last[0] - before[0]) * 1e-9 if before is not None else 0.0
+        if h2 <= 0.0:
+            before = last = None
+        self._before, self._last = last, (stamp, s.copy())
         for d, k in self._derivative.items():
-            if dt <= 0.0:
+            if last is None:
                 s[d] = 0.0
                 continue
-            change = s[k] - last[1][k]
-            if self._coords[k][2]:
-                change = math.remainder(change, TWO_PI)
-            s[d] = change / dt
+            slope2 = self._change(s[k], last[1][k], k) / h2
+            if h1 > 0.0 and before is not None:
+                slope1 = self._change(last[1][k], before[1][k], k) / h1
+                s[d] = slope2 + (slope2 - slope1) * h2 / (h1 + h2)
+            else:
+                s[d] = slope2
         self._last[1][:] = s
+
+    def _change(self, x: float, x_before: float, k: int) -> float:
+        change = x - x_before
+        return math.remainder(change, TWO_PI) if self._coords[k][2] else change
 
 
 def is_finite(x: float, d: int, coords: list, measured: bool) -> bool:
