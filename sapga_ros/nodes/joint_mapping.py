@@ -96,7 +96,7 @@ class JointMapping:
 
     def describe(self) -> str:
         """One line: problem joint <- offset + direction * robot joint, ..."""
-        parts = [f'{j} = {o:g} {"+" if d > 0 else "-"} {r}' for j, r, o, d in
+        parts = [f'{j} = {o:g} {"+" if d > 0 else "-"} robot {r}' for j, r, o, d in
                  zip(self.problem.joints, self.robot_joints, self.offsets, self.directions)]
         return ', '.join(parts) + f'; velocities: {self.velocity_source}'
 
