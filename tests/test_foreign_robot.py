@@ -145,3 +145,32 @@ def test_the_classical_controller_swings_up_the_mujoco_acrobot_through_the_mappi
     assert end['delta_star'] <= 0.02
     names = {tuple(m.name) for m in probe.states.values()}
     assert names == {('shoulder', 'elbow')}
+
+
+def test_sapga_launch_engine_mujoco_records_the_robot_driven_through_the_mapping(tmp_path):
+    """`sapga launch swingup --engine mujoco`: the classical acrobot_hold controller swings
+    up and holds the MuJoCo acrobot; the bag (read back by rosbags) holds the robot's joint
+    states, an effort array answering every state (the last one's steps nothing), and the
+    end event."""
+    pytest.importorskip('mujoco')
+    import json
+
+    from rosbags.highlevel import AnyReader
+    from test_launch import launch, the_bag
+    policy = tmp_path / 'c.json'
+    assert sapga(['classical', '--problem', 'acrobot_hold', '--out', str(policy)]) == 0
+    launch(['swingup', '--policy', str(policy), '--out', str(tmp_path / 'rec'),
+            '--engine', 'mujoco'], tmp_path)
+    with AnyReader([the_bag(tmp_path / 'rec')]) as reader:
+        msgs = [(c.topic, reader.deserialize(raw, c.msgtype))
+                for c, _, raw in reader.messages()]
+    states = {(m.header.stamp.sec, m.header.stamp.nanosec): m for t, m in msgs
+              if t == '/joint_states'}
+    efforts = [m.data for t, m in msgs if t == '/effort_controller/commands']
+    end = [json.loads(m.data) for t, m in msgs if t == '/episode_event'][-1]
+    assert {tuple(m.name) for m in states.values()} == {('shoulder', 'elbow')}
+    assert len(states) == 1001 and len(efforts) in (1000, 1001)   # the last: no step
+    assert {float(e[0]) for e in efforts} <= {-2.0, 0.0, 2.0} and len(
+        {float(e[0]) for e in efforts}) > 1
+    assert end['event'] == 'step_limit' and end['first_entry_step'] is not None
+    assert end['hold_fraction'] >= 0.9
