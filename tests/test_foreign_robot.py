@@ -125,8 +125,9 @@ def test_a_mapping_that_does_not_fit_is_refused_in_one_line(ros, params, line):
     assert line in str(err.value) and '\n' not in str(err.value)
 
 
+@pytest.mark.parametrize('output', ['effort_array', 'stamped'])
 def test_the_classical_controller_swings_up_the_mujoco_acrobot_through_the_mapping(
-        ros, tmp_path):
+        ros, tmp_path, output):
     pytest.importorskip('mujoco')
     problem = load_problem('acrobot_hold')
     assert sapga(['classical', '--problem', 'acrobot_hold',
@@ -135,12 +136,12 @@ def test_the_classical_controller_swings_up_the_mujoco_acrobot_through_the_mappi
     pol = ros.start(PolicyNode, params={
         'problem': 'acrobot_hold', 'policy_file': str(tmp_path / 'c.json'),
         'robot_joints': ['shoulder', 'elbow'], 'joint_offsets': [1.5 * math.pi, 0.0],
-        'joint_directions': [-1.0, -1.0], 'command_output': 'effort_array'})
+        'joint_directions': [-1.0, -1.0], 'command_output': output})
     sim = ros.start(SimNode, params={'problem': 'acrobot_hold', 'engine': 'mujoco',
                                      'mode': 'lockstep', 'n_step': 600, 'max_episodes': 1,
                                      'republish_period': 0.05})
     end = ros.wait_for(lambda: probe.end_of(1), 'the end of the episode', timeout=240)
-    assert pol.answered >= 600 and sim.commands.ignored == 0
+    assert pol.answered >= 600 and sim.commands.ignored == sim.commands.late == 0
     assert 0 < end['first_entry_step'] < 600 and end['hold_fraction'] > 0.5
     assert end['delta_star'] <= 0.02
     names = {tuple(m.name) for m in probe.states.values()}

@@ -5,8 +5,9 @@ needs: ``mdp_step(s, action, p)`` with the kernels' signature (the action in the
 convention; ``s`` becomes the problem state of the robot, for reward, goal and markers),
 ``reset(s)``, the robot's ``sensor_msgs/JointState`` (``new_msg``/``fill``: MuJoCo's joint
 names, positions, velocities and efforts in its own convention) and ``action(data)``, the
-problem's action of a ``std_msgs/Float64MultiArray`` effort command (one value per actuator,
-robot convention; ``MessageError`` for a wrong length).
+problem's action of an effort command (one value per actuator, robot convention:
+``std_msgs/Float64MultiArray``, and ``command`` / ``command_stamped`` on ``actuator_joint``;
+``MessageError`` for a wrong length).
 """
 from __future__ import annotations
 
@@ -30,7 +31,8 @@ class MujocoEngine:
     def __init__(self, problem: Problem) -> None:
         self.plant = plant = MujocoPlant(problem)
         self.frame_id = str(problem.ros.get('frame_id', problem.name))
-        self._actuated = plant.joint_names.index(plant.actuator_joints[0])
+        self.actuator_joint = plant.actuator_joints[0]
+        self._actuated = plant.joint_names.index(self.actuator_joint)
         self._direction = plant.problem_effort(1.0)
 
     def reset(self, s: np.ndarray) -> None:

@@ -6,7 +6,8 @@ Its parameters are ``sim_settings.py``'s (validated on every change; ``problem``
 ``qos_profile`` are read-only); commands are checked as ``commands.py`` says, markers drawn
 as ``markers.py`` says.  ``engine:=mujoco`` steps the MuJoCo robot of
 ``mujoco_engine.py`` instead of the kernel: the state is published as that robot's joints,
-and its ``std_msgs/Float64MultiArray`` effort command is taken as ``command`` is.
+and its ``std_msgs/Float64MultiArray`` effort command is taken as ``command`` is; every
+command input then carries the robot's effort (its joint names, its direction).
 
 Time: every published new state is one tick (``dt * substeps``, 0.05 s for the pendulums)
 of sim time later than the previous one (an MDP step, or the start of an episode), so
@@ -72,9 +73,10 @@ class SimNode(Node):
         self._stamped = StampedCommand(problem)
         engine = declare(self, engine_parameters())
         self._plant = MujocoEngine(problem) if engine['engine'] == 'mujoco' else None
-        if self._plant is not None:     # the MuJoCo robot: its joints, its effort command
+        if self._plant is not None:     # the MuJoCo robot: its joints, its effort commands
             self._mdp_step = self._plant.mdp_step
             self._layout = self._plant
+            self._stamped.joint = self._plant.actuator_joint
         self._markers = PendulumMarkers(problem)
         self.qos_profile = declare_settings(self, problem)
         self.settings = read_settings(self)
@@ -175,7 +177,7 @@ class SimNode(Node):
     def _on_command(self, msg: Float64, info: dict) -> None:
         """Hand-use command (no stamp): lockstep takes it as the current state's answer."""
         self.dropped[self._command_sub.topic_name].seen(info)
-        self._take_unstamped(msg.data)
+        self._take_unstamped(self._plant.action([msg.data]) if self._plant else msg.data)
 
     def _on_effort(self, msg: Float64MultiArray, info: dict) -> None:
         """engine mujoco: the robot's effort command (no stamp, as ``command``)."""
@@ -201,6 +203,7 @@ class SimNode(Node):
         self.dropped[self._stamped_sub.topic_name].seen(info)
         try:
             answered, value = self._stamped.read(msg)
+            value = self._plant.action([value]) if self._plant else value
         except MessageError as exc:
             self.commands.reject(f'stamped command: {exc}')
             return
