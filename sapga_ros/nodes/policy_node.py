@@ -27,7 +27,8 @@ is loaded at once, so setting ``policy_file`` is refused with the reason; a larg
 accepted at once, swapped in when ready, and if it fails, the error is logged and
 ``policy_file`` goes back to the file of the policy in use.  States that arrive faster than
 they are answered are dropped by the subscription's queue: counted in ``dropped.count``
-with a throttled warning (``sim_nodes/ros/dropped.py``).
+with a throttled warning (``sim_nodes/ros/dropped.py``).  Just over 300 lines: the node's
+callbacks in one place; loading, mapping and parameters are their own modules.
 """
 from __future__ import annotations
 

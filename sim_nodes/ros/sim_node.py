@@ -15,6 +15,8 @@ stamps are distinct and monotonic.
 In lockstep the command answering an episode's final state starts the next episode (with
 auto_reset) instead of stepping, so each state gets exactly one command; a stamped command
 steps only the state it answers.
+It stays over 300 lines as the one episode loop of the ROS side (parameters, command inputs,
+episode, publishing), read top to bottom; the engines, checks and messages are elsewhere.
 """
 from __future__ import annotations
 
