@@ -24,6 +24,7 @@ number.  Adding a parameter is one line: a ``param(...)`` field or a ``Param(...
 """
 from __future__ import annotations
 
+import array
 import math
 from dataclasses import dataclass, field, fields, replace
 from typing import Any, Callable, Iterable, Sequence
@@ -60,6 +61,7 @@ class Param:
     kind: type | None = None               # bool, int, float, str or list
     read_only: bool = False
     flag: str = ''                         # the CLI option; '': --<name-with-dashes>
+    item: type = str                       # a list's items: str, or float (a double array)
     cli: bool = True                       # offered on the command line
 
     @property
@@ -88,8 +90,10 @@ class Param:
         kind = self.type
         if self.choices:
             return f'one of {", ".join(self.choices)}'
-        if kind in (bool, str, list):
-            return {bool: 'true or false', str: 'a string', list: 'a list of strings'}[kind]
+        if kind is list:
+            return 'a list of numbers' if self.item is float else 'a list of strings'
+        if kind in (bool, str):
+            return {bool: 'true or false', str: 'a string'}[kind]
         low, high = self.bounds()
         if kind is float:
             return f'a number in [{number_text(low)}, {number_text(high)}]'
@@ -101,12 +105,16 @@ class Param:
         """``value`` with an integer made a double for a double parameter."""
         if self.type is float and isinstance(value, int) and not isinstance(value, bool):
             return float(value)
+        if self.type is list and self.item is float and _numbers(value):
+            return [float(v) for v in value]
         return value
 
     def fits(self, value: Any) -> bool:
         kind = self.type
         if self.choices:
             return isinstance(value, str) and value in self.choices
+        if kind is list and self.item is float:
+            return _numbers(value) and all(math.isfinite(v) for v in value)
         if kind is list:
             return isinstance(value, (list, tuple)) and all(isinstance(v, str) for v in value)
         if kind in (bool, str):
@@ -149,6 +157,12 @@ DELTA = Param('delta', FromProblem('episode.delta'), 'goal difficulty: an episod
               'S_delta', low=0.0, high=1e9, kind=float)
 N_STEP = Param('n_step', FromProblem('episode.n_step'), 'MDP steps per episode at most',
                low=1, high=10 ** 9, kind=int)
+
+
+def _numbers(value: Any) -> bool:
+    """A sequence of numbers (no bools): a double array's value."""
+    return isinstance(value, (list, tuple, array.array)) and all(
+        isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
 
 
 def number_text(x: float) -> str:
@@ -223,7 +237,8 @@ def usage_lines(table: Sequence[Param]) -> list[str]:
     rows = [('name', 'type', 'default', 'range / choices', 'description')]
     for p in table:
         text = p.text + (' (read-only)' if p.read_only else '')
-        rows.append((p.name, TYPE_NAMES[p.type], p.shown_default(), p.range_text(), text))
+        kind = 'double array' if p.type is list and p.item is float else TYPE_NAMES[p.type]
+        rows.append((p.name, kind, p.shown_default(), p.range_text(), text))
     widths = [max(len(r[k]) for r in rows) for k in range(4)]
     return ['  ' + '  '.join(cell.ljust(w) for cell, w in zip(r[:4], widths)) + '  ' + r[4]
             for r in rows]

@@ -87,7 +87,8 @@ def test_help_prints_every_declared_parameter_with_its_range_and_exits_0(ros, tm
     assert set(table) == declared
     types = {ParameterType.PARAMETER_BOOL: 'boolean', ParameterType.PARAMETER_INTEGER:
              'integer', ParameterType.PARAMETER_DOUBLE: 'double', ParameterType.PARAMETER_STRING:
-             'string', ParameterType.PARAMETER_STRING_ARRAY: 'string array'}
+             'string', ParameterType.PARAMETER_STRING_ARRAY: 'string array',
+             ParameterType.PARAMETER_DOUBLE_ARRAY: 'double array'}
     for name, cells in table.items():
         d = node.describe_parameter(name)
         assert cells['range / choices'] == range_text(d), name
@@ -147,7 +148,7 @@ def test_numeric_parameters_declare_their_ranges_over_describe_parameters(ros, t
             if p.choices:
                 assert d.additional_constraints == f'one of: {", ".join(p.choices)}'
     numeric = [p for table in tables.values() for p in table if p.type in (int, float)]
-    assert len(numeric) == 12 and all(p.low is not None for p in numeric)
+    assert len(numeric) == 14 and all(p.low is not None for p in numeric)
 
 
 def test_a_value_outside_the_declared_range_is_refused_on_set(ros):

@@ -188,15 +188,16 @@ def test_a_policys_delta_is_one_rule():
 
 
 def test_every_shipped_params_file_passes_its_nodes_declarations():
-    """msg_configs/params/<exe>.yaml holds values its node's declarations accept (the same
-    check a node makes of a --params-file before it starts)."""
+    """msg_configs/params/<exe>[_<example>].yaml holds values its node's declarations accept
+    (the same check a node makes of a --params-file before it starts)."""
     tables = {'policy_node': POLICY_PARAMETERS, 'recorder_node': RECORDER_PARAMETERS,
               'trainer_node': TRAINER_PARAMETERS}
     paths = sorted((config_dir() / 'params').glob('*.yaml'))
     assert len(paths) >= 4
     for path in paths:
         exe = path.stem
-        table = tables.get(exe) or sim_parameters(exe.removesuffix('_sim'))
+        table = next((tables[name] for name in tables if exe.startswith(name)), None) or \
+            sim_parameters(exe.removesuffix('_sim'))    # policy_node_<robot>.yaml: examples
         check_params_file(str(path), table)
     bad = config_dir() / 'params' / 'trainer_node.yaml'
     assert DELTA.name not in yaml.safe_load(bad.read_text())['/**']['ros__parameters']

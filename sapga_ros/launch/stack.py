@@ -20,6 +20,8 @@ from sapga_ros.recording.reader import read_recording
 from sapga_ros.recording.session import free_bag_path, utc_stamp
 from sapga_ros.recording.verify import recording_gaps
 from sim_nodes.models.registry import sim_executable
+from sim_nodes.mujoco_plant import mapping
+from sim_nodes.ros.mujoco_engine import EFFORT_TOPIC
 from sim_nodes.problem import Problem
 
 CONNECT_TIMEOUT_S = 90.0   # [s] for every node to start and join the graph
@@ -39,6 +41,7 @@ class StackOptions:
     episodes: int = 1
     mode: str = 'lockstep'
     real_time_factor: float = 1.0
+    engine: str = 'kernel'         # mujoco: the MuJoCo robot, driven through the mapping
 
 
 @dataclass
@@ -60,11 +63,16 @@ class DeployStack:
         self.bag = free_bag_path(o.out, f'{o.problem.name}_{utc_stamp()}')
         self.topics = {role: self.ros.node.resolve_topic_name(name)
                        for role, name in self.ros.node.topics.items()}
-        self.spawn('recorder', 'recorder_node', {'problem': o.problem.name,
-                                                 'output_dir': str(o.out),
-                                                 'bag': self.bag.name,
-                                                 'delta': float(o.delta)})
-        self.spawn('policy', 'policy_node', {'problem': o.problem.name})
+        recorder = {'problem': o.problem.name, 'output_dir': str(o.out),
+                    'bag': self.bag.name, 'delta': float(o.delta)}
+        policy: dict[str, Any] = {'problem': o.problem.name}
+        if o.engine == 'mujoco':
+            self.topics['effort'] = self.ros.node.resolve_topic_name(EFFORT_TOPIC)
+            recorder['topics'] = [*self.ros.node.topics.values(),
+                                  f'{EFFORT_TOPIC}:std_msgs/msg/Float64MultiArray']
+            policy.update(robot_mapping(o.problem))
+        self.spawn('recorder', 'recorder_node', recorder)
+        self.spawn('policy', 'policy_node', policy)
 
     def start_sim(self) -> None:
         """Start the simulator: lockstep, silent, its first episode once the recorder is
@@ -74,7 +82,7 @@ class DeployStack:
             'problem': o.problem.name, 'mode': 'lockstep', 'delta': float(o.delta),
             'auto_reset': True, 'max_episodes': o.episodes, 'republish_period': 0.0,
             'real_time_factor': float(o.real_time_factor), 'wait_for_recorder': RECORDER,
-            'recorder_timeout': CONNECT_TIMEOUT_S})
+            'recorder_timeout': CONNECT_TIMEOUT_S, 'engine': o.engine})
 
     def spawn(self, name: str, exe: str, params: dict[str, Any]) -> None:
         """Start package executable ``exe`` as child ``name`` with ``params``."""
@@ -90,6 +98,8 @@ class DeployStack:
         needs = {t['state']: (1, 3), t['command_stamped']: (1, 2), t['command']: (0, 2),
                  t['reward']: (1, 1), t['event']: (1, 2), t['exemplar']: (1, 1),
                  t['markers']: (2, 1), **(extra or {})}
+        if 'effort' in t:           # engine mujoco: the policy node's effort array
+            needs[t['effort']] = (1, 2)
         node = self.ros.node
         try:
             self.sup.wait(lambda: not node.missing_links(needs), timeout=CONNECT_TIMEOUT_S,
@@ -179,6 +189,17 @@ class DeployStack:
     def recordings(self) -> list[Path]:
         """The bag written by this run's recorder (none if it wrote nothing)."""
         return [self.bag] if self.bag is not None and self.bag.is_dir() else []
+
+
+def robot_mapping(problem: Problem) -> dict[str, Any]:
+    """The policy node's parameters driving the MuJoCo robot of ``problem`` (its joint
+    names and conventions, ``sim_nodes/mujoco_plant.py``) with an effort array."""
+    joints = mapping(problem)
+    rows = [joints[j] for j in problem.joints]
+    return {'robot_joints': [r.robot_joint for r in rows],
+            'joint_offsets': [r.offset for r in rows],
+            'joint_directions': [r.direction for r in rows],
+            'command_output': 'effort_array', 'effort_topic': EFFORT_TOPIC}
 
 
 def offline_episode(policy: Any, delta: float) -> dict:

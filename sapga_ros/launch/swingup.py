@@ -1,7 +1,7 @@
 """``sapga launch swingup``: simulator + policy node + rosbag2 recorder for N episodes.
 
     sapga launch swingup --policy FILE --out DIR [--mode lockstep|realtime] [--episodes N]
-                         [--problem P] [--delta D] [--real-time-factor F]
+                         [--problem P] [--delta D] [--real-time-factor F] [--engine E]
                          [--namespace NS] [--remap FROM:=TO ...] [--ros-args ARGS...]
 
 The problem is the policy file's; delta is ``--delta``, else the policy's training delta
@@ -27,7 +27,10 @@ lockstep episode exact:
    differs or the finished bag lacks a message of the episodes (``recording/verify.py``).
 
 The stack (``stack.py``) and the launch's own node (``launch_node.py``) are shared with
-``train_deploy``; ``--namespace``, ``--remap`` and ``--ros-args`` go to every node
+``train_deploy``.  ``--engine mujoco`` runs the MuJoCo robot (``sim_node -p engine:=mujoco``)
+and gives the policy node its joint mapping and an effort array output; the recorder records
+the effort array too, and there is no offline evaluation to compare (another engine).
+``--namespace``, ``--remap`` and ``--ros-args`` go to every node
 (``ros_args.py``).
 """
 from __future__ import annotations
@@ -91,6 +94,9 @@ def build_parser() -> argparse.ArgumentParser:
                              "the problem's)")
     add_param(p, sim['real_time_factor'], help='realtime mode: sim time / wall time '
                                                '(default 1)')
+    add_param(p, sim['engine'], help='kernel (default) or mujoco: the MuJoCo robot, which '
+                                     'the policy node drives through its joint mapping and '
+                                     'an effort array')
     add_ros_arguments(p)
     return p
 
@@ -102,10 +108,10 @@ def run_swingup(args: argparse.Namespace, sup: Supervisor) -> SwingupResult:
     policy = load_policy(Path(args.policy).resolve(), problem)   # checked before any start
     problem = policy.problem
     opts = StackOptions(problem, Path(args.out).resolve(), policy_delta(policy, args.delta),
-                        args.episodes, args.mode, args.real_time_factor)
+                        args.episodes, args.mode, args.real_time_factor, args.engine)
     sup.say(f'{problem.name}: policy {args.policy} ({len(policy)} exemplars), delta '
             f'{opts.delta}, {opts.episodes} episode(s) in {opts.mode} mode, recording to '
-            f'{opts.out}')
+            f'{opts.out}' + (', on the MuJoCo robot' if opts.engine == 'mujoco' else ''))
     ros = LaunchRos(problem, RosOptions.of(args))
     try:
         with tempfile.TemporaryDirectory(prefix='sapga-launch-') as tmp:
@@ -122,7 +128,7 @@ def run_swingup(args: argparse.Namespace, sup: Supervisor) -> SwingupResult:
         sup.stop()
         ros.close()
     offline = equal = None
-    if opts.mode == 'lockstep':
+    if opts.mode == 'lockstep' and opts.engine == 'kernel':   # MuJoCo is not the kernel
         offline = offline_episode(policy, opts.delta)
         equal = all(same_episode(event_summary(e), offline) for e in ends)
     return SwingupResult(ends, stack.recordings(), offline, equal, stack.check_recording(ends))

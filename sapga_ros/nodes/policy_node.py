@@ -13,7 +13,9 @@ A via-point policy starts its list again whenever the state is the problem's ini
 
 Parameters (``policy_params.py``; ``policy_node --help`` prints them with their ranges):
 ``problem``, ``policy_file``, ``trainer_service``, ``load_timeout``, ``markers``,
-``qos_profile``.
+``qos_profile``, and the mapping onto a robot that is not ours (``joint_mapping.py``): its
+joint names, angle offsets and directions, velocities from finite differences when its
+``JointState`` has none, and the command as a ``std_msgs/Float64MultiArray`` effort array.
 
 A ``policy_file`` given at start is loaded at once, whatever its size; one that cannot be used
 stops the node with one line naming the file (exit 2).  Service ``~/load_policy``
@@ -27,7 +29,8 @@ is loaded at once, so setting ``policy_file`` is refused with the reason; a larg
 accepted at once, swapped in when ready, and if it fails, the error is logged and
 ``policy_file`` goes back to the file of the policy in use.  States that arrive faster than
 they are answered are dropped by the subscription's queue: counted in ``dropped.count``
-with a throttled warning (``sim_nodes/ros/dropped.py``).
+with a throttled warning (``sim_nodes/ros/dropped.py``).  Just over 300 lines: the node's
+callbacks in one place; loading, mapping and parameters are their own modules.
 """
 from __future__ import annotations
 
@@ -41,7 +44,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.task import Future
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Int32
+from std_msgs.msg import Float64MultiArray, Int32
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
@@ -49,6 +52,7 @@ from sapga_ros.errors import PolicyFileError, SapgaError
 from sapga_ros.policies.runnable import load_policy, policy_from_json
 from sapga_ros.policies.jsonfile import MAX_POLICY_BYTES
 from sapga_ros.io.bounded import open_regular
+from sapga_ros.nodes.joint_mapping import JointMapping, RobotState
 from sapga_ros.nodes.policy_loader import LoadResult, PolicyLoader, PreparedPolicy, fetch_text
 from sapga_ros.nodes.policy_params import PARAMETERS, check_setting
 from sim_nodes.problem import Problem, load_problem
@@ -90,6 +94,8 @@ class PolicyNode(Node):
 
         p = self.problem
         self._layout = JointStateLayout(p)
+        self.mapping = JointMapping.of(p, values)
+        self.robot = RobotState(self.mapping)    # the robot's JointState as the problem's
         self._s = np.empty(p.dim)      # scratch: raw state
         self._s0 = p.initial_state
         self.active: PreparedPolicy | None = None
@@ -107,6 +113,11 @@ class PolicyNode(Node):
         quiet = {'event_callbacks': QUIET_PUBLISHER}
         self._command_pub = self.create_publisher(JointState, topics['command_stamped'], qos,
                                                   **quiet)
+        self._effort_pub = None
+        if self.mapping.command_output == 'effort_array':
+            self._effort_pub = self.create_publisher(Float64MultiArray, values['effort_topic'],
+                                                     qos, **quiet)
+            self._effort_msg = Float64MultiArray(data=[0.0] * self.mapping.effort_size)
         self._index_pub = self.create_publisher(Int32, topics['exemplar'], qos, **quiet)
         self._marker_pub = self.create_publisher(MarkerArray, topics['markers'], qos, **quiet)
         self._state_sub = self.create_subscription(JointState, topics['state'],
@@ -122,6 +133,7 @@ class PolicyNode(Node):
         self._load_srv = self.create_service(Trigger, '~/load_policy', self._on_load_policy,
                                              callback_group=self._load_group)
         self._command = StampedCommand(p)
+        self._command.msg.name = [self.mapping.robot_joints[self.mapping.actuated]]
         self._index_msg = Int32()
         self._ghosts = PendulumMarkers(p)
 
@@ -134,6 +146,9 @@ class PolicyNode(Node):
             self._install(PreparedPolicy.of(load_policy(policy_file, p), policy_file))
             self._file_in_use = policy_file
         self.get_logger().info(f'{p.name} policy node; load_policy fetches from {service!r}')
+        if not self.mapping.identity or self._effort_pub is not None:
+            self.get_logger().info(f'robot joints: {self.mapping.describe()}; commands: '
+                                   f'{self.mapping.command_output}')
 
     # selection ------------------------------------------------------------------------------
 
@@ -142,7 +157,7 @@ class PolicyNode(Node):
 
         Raises ``MessageError`` for a malformed state message.
         """
-        s = self._layout.from_msg(msg, self._s)
+        s = self.robot.read(msg, self._s)
         selector = prepared.selector
         if selector.stateful and np.array_equal(s, self._s0):
             selector.reset()  # an episode starts
@@ -169,7 +184,7 @@ class PolicyNode(Node):
             return
         self._last_stamp = stamp
         self.answered += 1
-        self._command_pub.publish(self._command.fill(action, stamp))
+        self._publish_command(action, stamp)
         self._index_msg.data = int(j)
         self._index_pub.publish(self._index_msg)
         if self.markers:
@@ -189,6 +204,15 @@ class PolicyNode(Node):
         if prepared is None:
             return WARN, 'no policy loaded: states are not answered', values
         return OK, f'{len(prepared)} exemplars from {prepared.source}'[:300], values
+
+    def _publish_command(self, action: float, stamp: int) -> None:
+        """The action as the robot takes it: stamped, or the effort array."""
+        effort = self.mapping.effort(action)
+        if self._effort_pub is None:
+            self._command_pub.publish(self._command.fill(effort, stamp))
+            return
+        self._effort_msg.data[self.mapping.effort_index] = effort
+        self._effort_pub.publish(self._effort_msg)
 
     # policies -------------------------------------------------------------------------------
 

@@ -13,14 +13,26 @@ load_timeout      double    5.0           [s] wait for the trainer's answer at m
 markers           bool      true          publish the exemplar ghost on ``markers``
 qos_profile       string    reliable      ``reliable`` (the problem's ``ros.qos``) |
                                           ``sensor_data`` (best effort; read-only)
+robot_joints      string[]  []            the robot's joint per problem joint ([]: same)
+joint_offsets     double[]  []            per problem joint: coordinate = offset +
+joint_directions  double[]  []            direction (1 or -1) * robot position
+velocity_source   string    auto          auto | message | difference (finite
+                                          differences of positions)
+command_output    string    stamped       stamped (``command_stamped``) | effort_array
+                                          (``std_msgs/Float64MultiArray``, effort_topic)
+effort_topic      string    see --help    effort_controller/commands
+effort_size       integer   1             values in the effort array (robot actuators)
+effort_index      integer   0             the actuated joint's index in it
 ================  ========  ============  ================================================
 
-(``policy_node --help`` prints the ranges too.)
+(``policy_node --help`` prints the ranges too.)  The mapping and output parameters are
+read-only; ``joint_mapping.py`` checks them together.
 """
 from __future__ import annotations
 
 from typing import Any
 
+from sapga_ros.nodes.joint_mapping import COMMAND_OUTPUTS, VELOCITY_SOURCES
 from sim_nodes.params import Param
 from sim_nodes.ros.common import QOS_PROFILES
 from sim_nodes.ros.params import check
@@ -37,6 +49,28 @@ PARAMETERS = (
     Param('qos_profile', 'reliable', 'reliable (the problem ros.qos) | sensor_data (best '
           'effort)', choices=QOS_PROFILES, read_only=True),
 )
+# driving a robot that is not ours (joint_mapping.py); all read-only
+MAPPING_PARAMETERS = (
+    Param('robot_joints', [], "the robot's joint name for each of the problem's ros.joints "
+          '([] = the same names)', read_only=True),
+    Param('joint_offsets', [], 'per problem joint: coordinate = offset + direction * robot '
+          'position ([] = 0)', item=float, read_only=True),
+    Param('joint_directions', [], 'per problem joint: 1 or -1 (also the sign of the effort; '
+          '[] = 1)', item=float, read_only=True),
+    Param('velocity_source', 'auto', 'auto: the JointState velocities, finite differences of '
+          'positions when it has none; message; difference', choices=VELOCITY_SOURCES,
+          read_only=True),
+    Param('command_output', 'stamped', 'stamped: command_stamped (sensor_msgs/JointState); '
+          'effort_array: std_msgs/Float64MultiArray on effort_topic', choices=COMMAND_OUTPUTS,
+          read_only=True),
+    Param('effort_topic', 'effort_controller/commands', 'effort_array: the forward command '
+          "controller's topic", read_only=True),
+    Param('effort_size', 1, 'effort_array: its length (the robot actuators)', 1, 1024,
+          read_only=True),
+    Param('effort_index', 0, "effort_array: the actuated joint's index in it", 0, 1023,
+          read_only=True),
+)
+PARAMETERS = PARAMETERS + MAPPING_PARAMETERS
 
 
 def check_setting(name: str, value: Any) -> str | None:

@@ -38,7 +38,8 @@ def recording_gaps(rec: Recording, topics: Mapping[str, str],
     """What ``rec`` lacks of the episodes that ended with ``ends``; [] when whole.
 
     ``topics`` maps the roles state, reward, event, command and / or command_stamped (and
-    optionally exemplar and markers) to resolved topic names.
+    optionally exemplar, markers and effort, the effort array a robot takes) to resolved
+    topic names.
     """
     steps = sum(int(e.get('step') or 0) for e in ends)
     n = len(ends)
@@ -56,7 +57,7 @@ def recording_gaps(rec: Recording, topics: Mapping[str, str],
     }
     if lockstep:
         commands = sum(len(by_topic.get(topics[role], []))
-                       for role in ('command', 'command_stamped') if role in topics)
+                       for role in ('command', 'command_stamped', 'effort') if role in topics)
         have['commands'] = (commands, steps + n - 1)
         if 'exemplar' in topics:    # the policy node names the exemplar of every answer
             have['exemplar indices'] = (len(by_topic.get(topics['exemplar'], [])),

@@ -33,8 +33,9 @@ PARAMETER_TYPES = {bool: ParameterType.PARAMETER_BOOL, int: ParameterType.PARAME
 
 def descriptor(p: Param) -> ParameterDescriptor:
     """The ROS descriptor: description, read_only, type, range or choices."""
-    d = ParameterDescriptor(description=p.text, read_only=p.read_only,
-                            type=PARAMETER_TYPES[p.type])
+    kind = (ParameterType.PARAMETER_DOUBLE_ARRAY if p.type is list and p.item is float
+            else PARAMETER_TYPES[p.type])
+    d = ParameterDescriptor(description=p.text, read_only=p.read_only, type=kind)
     if p.choices:
         d.additional_constraints = f'one of: {", ".join(p.choices)}'
     elif p.range_text():
@@ -48,10 +49,17 @@ def descriptor(p: Param) -> ParameterDescriptor:
 
 
 def _as_doubles(table: dict[str, Param], params: list[Parameter]) -> list[Parameter]:
-    """``params`` with an integer given for a double parameter made that double."""
-    return [Parameter(q.name, value=float(q.value))
-            if q.name in table and table[q.name].type is float
-            and q.type_ == Parameter.Type.INTEGER else q for q in params]
+    """``params`` with an integer (array) given for a double (array) parameter made that
+    double (array)."""
+    def doubles(q: Parameter) -> Parameter:
+        p = table.get(q.name)
+        if p is not None and p.type is float and q.type_ == Parameter.Type.INTEGER:
+            return Parameter(q.name, value=float(q.value))
+        if (p is not None and p.type is list and p.item is float
+                and q.type_ == Parameter.Type.INTEGER_ARRAY):
+            return Parameter(q.name, value=[float(v) for v in q.value])
+        return q
+    return [doubles(q) for q in params]
 
 
 def _adapt(node: Node, table: dict[str, Param]) -> None:
@@ -97,7 +105,8 @@ def declare(node: Node, table: Iterable[Param], problem: Problem | None = None
     for p in rows:
         default = problem.resolve(p.name) if p.from_problem else p.default
         if default == []:
-            default = Parameter.Type.STRING_ARRAY
+            default = (Parameter.Type.DOUBLE_ARRAY if p.item is float
+                       else Parameter.Type.STRING_ARRAY)
         try:
             values[p.name] = node.declare_parameter(p.name, default, descriptor(p)).value
         except ParameterException:

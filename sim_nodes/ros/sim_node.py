@@ -6,6 +6,10 @@ Its parameters are ``sim_settings.py``'s (validated on every change; ``problem``
 ``qos_profile`` are read-only); commands are checked as ``commands.py`` says, markers drawn
 as ``markers.py`` says.  Service ``~/reset`` (``/<node>/reset``, std_srvs/Trigger) starts a
 new episode; ``/diagnostics`` reports the node's state and counters once a second.
+``engine:=mujoco`` steps the MuJoCo robot of ``mujoco_engine.py`` instead of the kernel: the
+state is published as that robot's joints, and its ``std_msgs/Float64MultiArray`` effort
+command is taken as ``command`` is; every command input then carries the robot's effort (its
+joint names, its direction).
 
 Time: every published new state is one tick (``dt * substeps``, 0.05 s for the pendulums)
 of sim time later than the previous one (an MDP step, or the start of an episode), so
@@ -41,7 +45,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64, String
+from std_msgs.msg import Float64, Float64MultiArray, String
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
@@ -56,10 +60,12 @@ from sim_nodes.ros.common import (CLOCK_QOS, EVENT_QOS, QUIET_PUBLISHER, JointSt
 from sim_nodes.ros.diagnostics import OK, WARN, NodeDiagnostics, Report
 from sim_nodes.ros.dropped import DropCounter
 from sim_nodes.ros.markers import PendulumMarkers
+from sim_nodes.ros.mujoco_engine import MujocoEngine
 from sim_nodes.ros.params import declare
 from sim_nodes.ros.recorder_gate import RecorderGate
 from sim_nodes.ros.sim_settings import (MODES, SimSettings, check_setting,  # noqa: F401
-                                        declare_settings, read_settings, sim_parameters)
+                                        declare_settings, engine_parameters, read_settings,
+                                        sim_parameters)
 
 
 CATCH_UP = 0.6     # realtime: a next tick due sooner than this many periods is put off
@@ -86,6 +92,12 @@ class SimNode(Node):
         self._tick_ns = round(problem.dt * problem.substeps * 1e9)  # sim time per tick
         self._layout = JointStateLayout(problem)
         self._stamped = StampedCommand(problem)
+        engine = declare(self, engine_parameters())
+        self._plant = MujocoEngine(problem) if engine['engine'] == 'mujoco' else None
+        if self._plant is not None:     # the MuJoCo robot: its joints, its effort commands
+            self._mdp_step = self._plant.mdp_step
+            self._layout = self._plant
+            self._stamped.joint = self._plant.actuator_joint
         self._markers = PendulumMarkers(problem)
         self.qos_profile = declare_settings(self, problem)
         self.settings = read_settings(self)
@@ -104,9 +116,14 @@ class SimNode(Node):
                                                      self._on_command, qos)
         self._stamped_sub = self.create_subscription(JointState, topics['command_stamped'],
                                                      self._on_stamped_command, qos)
+        subs = [self._command_sub, self._stamped_sub]
+        if self._plant is not None:
+            self._effort_sub = self.create_subscription(
+                Float64MultiArray, engine['effort_topic'], self._on_effort, qos)
+            subs.append(self._effort_sub)
         self.dropped = {sub.topic_name: DropCounter(self.get_logger(), sub.topic_name,
                                                     sub.get_publisher_count, qos.depth)
-                        for sub in (self._command_sub, self._stamped_sub)}
+                        for sub in subs}
         self._reset_srv = self.create_service(Trigger, '~/reset', self._on_reset)
         self._step_timer = None
         self._republish_timer = None
@@ -141,8 +158,8 @@ class SimNode(Node):
         self._gate = RecorderGate(self, self._first_episode)  # the first episode
         s = self.settings
         self.get_logger().info(
-            f'{problem.name} sim: mode {s.mode}, delta {s.delta}, n_step {s.n_step}, '
-            f'actuator limit {self.commands.limit}, QoS {self.qos_profile}')
+            f'{problem.name} sim ({engine["engine"]}): mode {s.mode}, delta {s.delta}, '
+            f'n_step {s.n_step}, actuator limit {self.commands.limit}, QoS {self.qos_profile}')
 
     # parameters -------------------------------------------------------------------------
 
@@ -199,7 +216,20 @@ class SimNode(Node):
     def _on_command(self, msg: Float64, info: dict) -> None:
         """Hand-use command (no stamp): lockstep takes it as the current state's answer."""
         self.dropped[self._command_sub.topic_name].seen(info)
-        value = self.commands.value(msg.data)
+        self._take_unstamped(self._plant.action([msg.data]) if self._plant else msg.data)
+
+    def _on_effort(self, msg: Float64MultiArray, info: dict) -> None:
+        """engine mujoco: the robot's effort command (no stamp, as ``command``)."""
+        self.dropped[self._effort_sub.topic_name].seen(info)
+        try:
+            value = self._plant.action(msg.data)
+        except MessageError as exc:
+            self.commands.reject(str(exc))
+            return
+        self._take_unstamped(value)
+
+    def _take_unstamped(self, value: float) -> None:
+        value = self.commands.value(value)
         if value is None:
             return
         if self.settings.mode == 'lockstep':
@@ -213,6 +243,7 @@ class SimNode(Node):
         self.dropped[self._stamped_sub.topic_name].seen(info)
         try:
             answered, value = self._stamped.read(msg)
+            value = self._plant.action([value]) if self._plant else value
         except MessageError as exc:
             self.commands.reject(f'stamped command: {exc}')
             return
@@ -340,6 +371,8 @@ class SimNode(Node):
 
     def _start_episode(self) -> None:
         self._s[:] = self._s0
+        if self._plant is not None:
+            self._plant.reset(self._s0)
         self._episode += 1
         self._step = 0
         self._return = 0.0

@@ -15,7 +15,8 @@ step per tick of wall time / ``real_time_factor``, zero-order hold on the latest
 (read-only; ``sensor_data``: best effort, depth 5, for realtime runs), ``wait_for_policy``
 and ``policy_timeout`` (realtime: the first tick waits for a command answering the first
 state, which is re-published meanwhile; exit 1 after the timeout), and the recorder gate's
-``wait_for_recorder`` and ``recorder_timeout`` (``recorder_gate.py``).
+``wait_for_recorder`` and ``recorder_timeout`` (``recorder_gate.py``), ``engine``
+(read-only; ``kernel`` or ``mujoco``) and ``effort_topic`` (``mujoco_engine.py``).
 """
 from __future__ import annotations
 
@@ -27,6 +28,7 @@ from rclpy.node import Node
 from sim_nodes.params import DELTA, N_STEP, Param
 from sim_nodes.problem import Problem
 from sim_nodes.ros.common import QOS_PROFILES
+from sim_nodes.ros.mujoco_engine import EFFORT_TOPIC, ENGINES
 from sim_nodes.ros.params import check, declare
 from sim_nodes.ros.recorder_gate import gate_parameters
 
@@ -73,7 +75,16 @@ def sim_parameters(default_problem: str) -> list[Param]:
               'state (re-published meanwhile); false: step at once', read_only=True),
         Param('policy_timeout', 60.0, 'how long realtime waits for that answer (longer: the '
               'node stops, exit 1)', 1e-3, 86400.0, read_only=True, unit='s'),
-        *gate_parameters()]
+        *gate_parameters(), *engine_parameters()]
+
+
+def engine_parameters() -> list[Param]:
+    """The physics engine: the compiled kernel, or MuJoCo (``mujoco_engine.py``)."""
+    return [Param('engine', 'kernel', 'kernel: the compiled model, as the evaluator; mujoco: '
+                  'the MuJoCo robot (its own joint names and angle zero)', choices=ENGINES,
+                  read_only=True),
+            Param('effort_topic', EFFORT_TOPIC, 'engine mujoco: the std_msgs/Float64MultiArray '
+                  'effort command (one value per actuator)', read_only=True)]
 
 
 _CHECKED = sim_parameters('acrobot')    # ranges and choices do not depend on the problem
@@ -87,7 +98,7 @@ def check_setting(name: str, value: Any) -> str | None:
 def declare_settings(node: Node, problem: Problem) -> str:
     """Declare the simulator's parameters but ``problem`` (declared first, to read it) and
     the recorder gate's; return the (read-only) qos_profile."""
-    gate = {p.name for p in gate_parameters()}
+    gate = {p.name for p in gate_parameters() + engine_parameters()}
     table = [p for p in sim_parameters(problem.name) if p.name != 'problem' and
              p.name not in gate]
     return declare(node, table, problem)['qos_profile']

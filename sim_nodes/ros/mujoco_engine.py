@@ -1,0 +1,71 @@
+"""The simulator node's MuJoCo engine (``engine:=mujoco``): the plant behind the topics.
+
+``MujocoEngine(problem)`` wraps ``sim_nodes.mujoco_plant.MujocoPlant`` with what the node
+needs: ``mdp_step(s, action, p)`` with the kernels' signature (the action in the problem's
+convention; ``s`` becomes the problem state of the robot, for reward, goal and markers),
+``reset(s)``, the robot's ``sensor_msgs/JointState`` (``new_msg``/``fill``: MuJoCo's joint
+names, positions, velocities and efforts in its own convention) and ``action(data)``, the
+problem's action of an effort command (one value per actuator, robot convention:
+``std_msgs/Float64MultiArray``, and ``command`` / ``command_stamped`` on ``actuator_joint``;
+``MessageError`` for a wrong length).
+"""
+from __future__ import annotations
+
+import array
+from typing import Sequence
+
+import numpy as np
+from sensor_msgs.msg import JointState
+
+from sim_nodes.mujoco_plant import MujocoPlant
+from sim_nodes.problem import Problem
+from sim_nodes.ros.common import MessageError, set_stamp
+
+ENGINES = ('kernel', 'mujoco')
+EFFORT_TOPIC = 'effort_controller/commands'
+
+
+class MujocoEngine:
+    """A problem's MuJoCo robot as the simulator node steps and publishes it."""
+
+    def __init__(self, problem: Problem) -> None:
+        self.plant = plant = MujocoPlant(problem)
+        self.frame_id = str(problem.ros.get('frame_id', problem.name))
+        self.actuator_joint = plant.actuator_joints[0]
+        self._actuated = plant.joint_names.index(self.actuator_joint)
+        self._direction = plant.problem_effort(1.0)
+
+    def reset(self, s: np.ndarray) -> None:
+        self.plant.reset(s)
+
+    def mdp_step(self, s: np.ndarray, action: float, p: np.ndarray) -> float:
+        """Hold ``action`` (the problem's convention) for one MDP step; ``s`` gets the
+        problem state of the robot; the step's reward."""
+        self.plant.step(self._direction * action)
+        self.plant.problem_state(s)
+        return self.plant.reward(s)
+
+    def action(self, data: Sequence[float]) -> float:
+        """The problem's action of an effort command (one value per actuator)."""
+        n = self.plant.model.nu
+        if len(data) != n:
+            raise MessageError(f'effort command with {len(data)} values: the robot has {n} '
+                               f'actuator(s) ({", ".join(self.plant.actuator_joints)})')
+        return float(data[0]) * self._direction
+
+    def new_msg(self) -> JointState:
+        msg = JointState()
+        msg.name = list(self.plant.joint_names)
+        msg.header.frame_id = self.frame_id
+        return msg
+
+    def fill(self, msg: JointState, s: np.ndarray, effort: float, stamp: int) -> JointState:
+        """The robot's joints (``s`` is not read: the plant is) and the applied ``effort``
+        (the problem's action, published in the robot's convention) at ``stamp`` [ns]."""
+        eff = [0.0] * len(self.plant.joint_names)
+        eff[self._actuated] = self._direction * effort
+        set_stamp(msg.header, stamp)
+        msg.position = array.array('d', self.plant.positions)
+        msg.velocity = array.array('d', self.plant.velocities)
+        msg.effort = array.array('d', eff)
+        return msg

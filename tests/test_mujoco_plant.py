@@ -1,0 +1,95 @@
+"""The MuJoCo plant (sim_nodes/mujoco_plant.py) against the compiled kernels.
+
+How closely they agree, from 4 start states (the initial state and 3 spread by U(-0.3, 0.3)
+per coordinate) under random actions:
+
+* acrobot: MuJoCo's RK4 integrates the same equations as the kernel's RK4, so the two agree
+  to about 1e-14 rad over 40 MDP steps (2 s) of swinging; asserted: 1e-9.  They part later,
+  once the kernel clips a velocity (MuJoCo has no clip) and chaos grows the round-off.
+* pdip, pdip_single: the kernel integrates with semi-implicit Euler, MuJoCo with RK4 (an
+  O(dt) difference per step), so they agree to about 0.05 over 10 MDP steps (0.5 s; largest
+  difference of any coordinate, angles on the circle); asserted: 0.1.  Over 2 s they differ
+  by radians: the poles are chaotic, and the rail differs (the kernel stops the cart and
+  zeroes its velocity, MuJoCo's joint limit is a soft constraint).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from sim_nodes.errors import ConfigError
+from sim_nodes.models import model_module
+from sim_nodes.mujoco_plant import MujocoPlant, mapping
+from sim_nodes.problem import load_problem
+
+pytest.importorskip('mujoco')
+
+
+def difference(a: np.ndarray, b: np.ndarray, is_angle: np.ndarray) -> float:
+    d = np.abs(a - b)
+    d = np.where(is_angle, np.minimum(d % (2 * math.pi), 2 * math.pi - d % (2 * math.pi)), d)
+    return float(d.max())
+
+
+def starts(problem, rng):
+    s0 = problem.initial_state
+    yield s0.copy()
+    for _ in range(3):
+        s = s0 + rng.uniform(-0.3, 0.3, s0.shape)
+        if problem.name == 'pdip_single':       # one pole: both coordinates equal
+            s[3], s[5] = s[2], s[4]
+        yield s
+
+
+@pytest.mark.parametrize('name, steps, tolerance', [
+    ('acrobot', 40, 1e-9), ('pdip', 10, 0.1), ('pdip_single', 10, 0.1)])
+def test_mujoco_agrees_with_the_kernel_over_short_horizons(name, steps, tolerance):
+    problem = load_problem(name)
+    plant = MujocoPlant(problem)
+    kernel = model_module(problem.model).mdp_step
+    p = problem.params()
+    rng = np.random.default_rng(0)
+    worst = 0.0
+    for s in starts(problem, rng):
+        plant.reset(s)
+        assert difference(plant.problem_state(), s, problem.is_angle) < 1e-12
+        for a in rng.choice(problem.action_values, steps):
+            r_kernel = kernel(s, a, p)
+            plant.step(plant.problem_effort(a))
+            sm = plant.problem_state()
+            worst = max(worst, difference(s, sm, problem.is_angle))
+            assert abs(plant.reward(sm) - r_kernel) < 10 * tolerance
+    assert worst < tolerance, f'{name}: differs by {worst} within {steps} steps'
+
+
+def test_the_robot_speaks_its_own_convention():
+    """MuJoCo's joint names, zero hanging down, and efforts in its own direction."""
+    acro = MujocoPlant(load_problem('acrobot'))
+    assert acro.joint_names == ('shoulder', 'elbow') and acro.actuator_joints == ('elbow',)
+    acro.reset(load_problem('acrobot').initial_state)      # hanging down: MuJoCo's zero
+    assert np.allclose(acro.positions, 0.0) and np.allclose(acro.velocities, 0.0)
+    acro.step(np.array([1.0]))                 # positive elbow effort: elbow angle grows,
+    assert acro.positions[1] > 0 and acro.problem_state()[1] > math.pi   # theta2 falls
+    single = MujocoPlant(load_problem('pdip_single'))
+    assert single.joint_names == ('slider', 'hinge')
+    assert MujocoPlant(load_problem('pdip')).joint_names == ('slider', 'hinge1', 'hinge2')
+    assert mapping(load_problem('pdip_single'))['pole2'].robot_joint == 'hinge'
+
+
+def test_the_rail_is_a_joint_limit_and_counts_as_a_contact():
+    problem = load_problem('pdip')
+    plant = MujocoPlant(problem)
+    plant.reset(problem.initial_state)
+    rewards = []
+    for _ in range(60):
+        plant.step(40.0)
+        rewards.append(plant.reward(plant.problem_state()))
+    assert plant.contact and min(rewards) < -100
+    assert plant.positions[0] < problem.physics['x_max'] + 0.1   # held near the rail end
+
+
+def test_a_problem_without_a_mujoco_model_is_refused_in_one_line():
+    with pytest.raises(ConfigError, match='no MuJoCo model of .mountain_car'):
+        MujocoPlant(load_problem('mountain_car'))

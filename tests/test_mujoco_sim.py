@@ -1,0 +1,79 @@
+"""The simulator node with ``engine:=mujoco`` over real Fast DDS: the MuJoCo robot's joint
+states (its names, its zero) answered by ``std_msgs/Float64MultiArray`` effort commands, the
+same trajectory as the plant stepped offline, and malformed efforts ignored."""
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+import pytest
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray
+
+from ros_helpers import PROBE_QOS, Probe, isolated_ros
+from sim_nodes.mujoco_plant import MujocoPlant
+from sim_nodes.problem import load_problem
+from sim_nodes.ros.common import stamp_ns
+from sim_nodes.ros.sim_node import SimNode
+from rclpy.node import Node
+
+pytest.importorskip('mujoco')
+
+
+@pytest.fixture
+def ros(monkeypatch, tmp_path):
+    yield from isolated_ros(monkeypatch, tmp_path)
+
+
+class EffortDriver(Node):
+    """Answers each new joint state with the next effort of ``efforts`` (robot convention),
+    after the malformed ``bad`` one at step ``bad_at``."""
+
+    def __init__(self, efforts: list[list[float]], bad: list[float], bad_at: int,
+                 **kwargs) -> None:
+        super().__init__('driver', **kwargs)
+        self.efforts = list(efforts)
+        self.bad, self.bad_at = bad, bad_at
+        self.states: list[JointState] = []
+        self.lock = threading.Lock()
+        self.pub = self.create_publisher(Float64MultiArray, 'effort_controller/commands',
+                                         PROBE_QOS)
+        self.create_subscription(JointState, 'joint_states', self._on_state, PROBE_QOS)
+
+    def _on_state(self, msg: JointState) -> None:
+        with self.lock:
+            if self.states and stamp_ns(self.states[-1]) == stamp_ns(msg):
+                return                                   # a lockstep re-publish
+            self.states.append(msg)
+            k = len(self.states) - 1
+        if k == self.bad_at:
+            self.pub.publish(Float64MultiArray(data=self.bad))
+        if k < len(self.efforts):
+            self.pub.publish(Float64MultiArray(data=self.efforts[k]))
+
+
+def test_the_mujoco_robot_is_driven_by_effort_arrays(ros):
+    problem = load_problem('acrobot')
+    rng = np.random.default_rng(3)
+    efforts = [[float(v)] for v in rng.choice([-2.0, 0.0, 2.0], 30)]
+    sim = ros.start(SimNode, params={'engine': 'mujoco', 'mode': 'lockstep',
+                                     'republish_period': 0.05})
+    probe = ros.start(Probe, problem=problem)
+    ros.wait_for(lambda: sim._effort_sub.get_publisher_count() == 0 and probe.states,
+                 'the first state')
+    driver = ros.start(EffortDriver, efforts=efforts, bad=[1.0, 2.0], bad_at=5)
+    ros.wait_for(lambda: len(driver.states) >= 31, '30 steps driven by effort arrays')
+    states = driver.states[:31]
+    assert all(list(m.name) == ['shoulder', 'elbow'] for m in states)
+    assert np.allclose(states[0].position, 0.0)              # hanging down: MuJoCo's zero
+    assert sim.commands.ignored == 1                          # the wrong length
+    plant = MujocoPlant(problem)                              # the same robot, offline
+    plant.reset(problem.initial_state)
+    good = efforts
+    for k in range(30):
+        plant.step(good[k][0])
+        assert np.array_equal(np.asarray(states[k + 1].position), plant.positions), k
+        assert np.array_equal(np.asarray(states[k + 1].velocity), plant.velocities), k
+        assert states[k + 1].effort[1] == good[k][0]
+    assert max(abs(p) for m in states for p in m.position) > 0.05    # it swings
+    assert sim._s[0] != problem.initial_state[0]           # the problem state follows
