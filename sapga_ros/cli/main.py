@@ -29,7 +29,7 @@ import json
 import sys
 from pathlib import Path
 
-from sapga_ros.cli.args import add_param, check_output_file, episode_steps
+from sapga_ros.cli.args import add_param, check_output_file, episode_steps, nonneg_int
 from sapga_ros.cli.classical import add_classical_arguments, cmd_classical
 from sapga_ros.cli.experiment import (add_experiment_arguments, add_limit_arguments,
                                       cmd_experiment, cmd_limit)
@@ -60,6 +60,15 @@ def build_parser() -> argparse.ArgumentParser:
     add_param(e, DELTA, help=POLICY_DELTA)
     e.add_argument('--max-steps', type=episode_steps, help='N_step (default: the problem\'s)')
     e.add_argument('--json', action='store_true', help='print one JSON object')
+    e.add_argument('--disturbance', metavar='NAME',
+                   help='run --episodes episodes disturbed by this profile (a name in '
+                        'msg_configs/disturbances or a .yaml file) and report the success '
+                        'rate and the distributions of hold fraction, delta* and rail contacts')
+    e.add_argument('--episodes', type=episode_steps, default=100,
+                   help='disturbed episodes (default 100)')
+    e.add_argument('--seed', type=nonneg_int, default=0,
+                   help='seed of the disturbances drawn (default 0; never the draws a '
+                        'training run used)')
 
     x = sub.add_parser('exemplars', help='list, plot or prune a policy\'s exemplars')
     x.add_argument('policy')
@@ -105,6 +114,8 @@ def cmd_eval(args) -> int:
                                                  run_policy_episode)
     policy = load_any_policy(args.policy)
     delta = policy_delta(policy, args.delta)
+    if args.disturbance:
+        return _eval_disturbed(args, policy, delta)
     ep = run_policy_episode(policy, delta, args.max_steps)
     if args.json:
         print(json.dumps(ep.summary()))
@@ -116,6 +127,21 @@ def cmd_eval(args) -> int:
             hold = ep.summary()
             print(f'  first entry step {hold["first_entry_step"]}, hold fraction '
                   f'{hold["hold_fraction"]:.4f}, rail contacts {hold["rail_contacts"]}')
+    return 0
+
+
+def _eval_disturbed(args, policy, delta: float) -> int:
+    from sapga_ros.evaluation.robust import robustness
+    out = robustness(policy, delta, args.disturbance, args.episodes, args.seed, args.max_steps)
+    if args.json:
+        print(json.dumps(out))
+        return 0
+    print(f"{policy.problem.name} under {out['disturbance']}, {out['episodes']} episodes: "
+          f"success {out['success_rate']:.3f} ({out['success']}), delta* median "
+          f"{out['delta_star']['median']:.4f} (q90 {out['delta_star']['q90']:.4f}), hold "
+          f"fraction mean {out['hold_fraction']['mean']:.3f}, rail contacts "
+          f"{out['rail_contacts']['total']} in {out['rail_contacts']['episodes_with']} "
+          'episodes')
     return 0
 
 
