@@ -92,3 +92,18 @@ def test_eval_reports_success_rate_and_distributions(tmp_path):
                          capture_output=True, text=True, env={**os.environ}, timeout=300)
     assert bad.returncode == 2 and "unknown disturbance 'gust'" in bad.stderr
     assert 'Traceback' not in bad.stderr
+
+
+def test_robustness_curves(tmp_path):
+    policy = tmp_path / 'lqr.json'
+    subprocess.run([*SAPGA, 'classical', '--problem', 'acrobot_hold', '--out', policy],
+                   capture_output=True, env={**os.environ}, timeout=300, check=True)
+    out = tmp_path / 'curves'
+    done = subprocess.run([*SAPGA, 'robustness', policy, policy, '--out', out, '--disturbance',
+                           'push', '--scales', '0,4', '--episodes', '3'],
+                          capture_output=True, text=True, env={**os.environ}, timeout=300)
+    assert done.returncode == 0, done.stderr
+    rows = json.loads((out / 'robustness.json').read_text())
+    assert [(r['scale'], r['episodes']) for r in rows] == [(0, 3), (4, 3)] * 2
+    assert rows[0]['success_rate'] == 1.0 and rows[0] == {**rows[2], 'policy': rows[0]['policy']}
+    assert (out / 'push.png').stat().st_size > 1000

@@ -4,6 +4,8 @@
                 [--jobs J] [--out FILE] [--checkpoint DIR] [--resume] [--init FILE ...]
                 [--style S] [--pop N] [--children N] [--l-min N] [--l-max N] ...
     sapga eval POLICY [--delta D] [--max-steps N] [--json]
+               [--disturbance NAME [--episodes N] [--seed S]]
+    sapga robustness POLICY ... --out DIR [--disturbance NAME ...] [--scales F,F,...]
     sapga exemplars POLICY [--json] [--plot OUT.png] [--prune-unused OUT.json]
     sapga bench [--json] [--ros [--problem P]] [--style S] [--training]
     sapga inspect BAG [--json] [--plot OUT.png] [--episode N]
@@ -35,6 +37,7 @@ from sapga_ros.cli.experiment import (add_experiment_arguments, add_limit_argume
                                       cmd_experiment, cmd_limit)
 from sapga_ros.cli.recordings import (add_bag_arguments, add_inspect_arguments, cmd_bag,
                                       cmd_inspect)
+from sapga_ros.cli.robustness import add_robustness_arguments, cmd_robustness
 from sapga_ros.cli.train import add_train_arguments, cmd_train
 from sapga_ros import package_version
 from sapga_ros.errors import SapgaError
@@ -102,6 +105,9 @@ def build_parser() -> argparse.ArgumentParser:
     add_classical_arguments(sub.add_parser(
         'classical', help='write the classical controller (LQR behind an energy swing-up) '
         'as a policy file'))
+
+    add_robustness_arguments(sub.add_parser(
+        'robustness', help='success-rate curves of policies against each disturbance\'s size'))
 
     # `sapga launch ...` goes to the launch itself (main); listed here for `sapga --help`
     sub.add_parser('launch', help='start a group of nodes (swingup, train_deploy; sapga '
@@ -241,7 +247,8 @@ def cmd_launch(argv: list[str]) -> int:
 
 COMMANDS = {'train': cmd_train, 'eval': cmd_eval, 'exemplars': cmd_exemplars,
             'bench': cmd_bench, 'inspect': cmd_inspect, 'bag': cmd_bag,
-            'experiment': cmd_experiment, 'limit': cmd_limit, 'classical': cmd_classical}
+            'experiment': cmd_experiment, 'limit': cmd_limit, 'classical': cmd_classical,
+            'robustness': cmd_robustness}
 
 
 def main(argv: list[str] | None = None) -> int:
