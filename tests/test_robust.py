@@ -107,3 +107,22 @@ def test_robustness_curves(tmp_path):
     assert [(r['scale'], r['episodes']) for r in rows] == [(0, 3), (4, 3)] * 2
     assert rows[0]['success_rate'] == 1.0 and rows[0] == {**rows[2], 'policy': rows[0]['policy']}
     assert (out / 'push.png').stat().st_size > 1000
+
+
+def test_experiment_rows_take_the_robust_settings():
+    from sapga_ros.training.experiment_set import _experiment, load_experiments
+    from sapga_ros.training.experiments import run_key
+    row = {'id': 1, 'problem': 'acrobot', 'delta': 0.02, 'method': 'sapga', 'steps': 1000}
+    plain = _experiment(row, 'set.experiments[0]')
+    robust = _experiment({**row, 'disturbance': 'field', 'episodes': 8, 'robust_stat': 'q10'},
+                         'set.experiments[0]')
+    assert (robust.disturbance, robust.episodes, robust.robust_stat) == ('field', 8, 'q10')
+    assert 'disturbance' not in run_key('s', plain, 0, 1000)['experiment']  # keys unchanged
+    assert run_key('s', robust, 0, 1000)['experiment']['episodes'] == 8
+    for bad, message in (({'disturbance': 'gust'}, "unknown disturbance 'gust'"),
+                         ({'robust_stat': 'q'}, 'robust_stat: expected mean or qNN'),
+                         ({'episodes': 0}, r'episodes: expected a whole number in \[1, 10000\]'),
+                         ({'method': 'ql', 'episodes': 2}, 'SAP-GA rows only')):
+        with pytest.raises(ConfigError, match=r'set\.experiments\[0\].*' + message):
+            _experiment({**row, **bad}, 'set.experiments[0]')
+    assert any(e.catch == 'lqr' for e in load_experiments('hold')[0])
