@@ -204,3 +204,71 @@ def load_disturbance(name: str) -> Disturbance:
     except (UnicodeDecodeError, yaml.YAMLError) as exc:
         raise ConfigError(f'{path}: malformed YAML ({str(exc).splitlines()[0]})') from exc
     return parse_disturbance(doc, str(path))
+
+
+class Plant:
+    """One disturbed episode at a time, step by step, for a simulator that steps the model
+    itself (the ROS simulator node): the same draws and the same order of operations as the
+    episode engine (``sapga_ros.evaluation.engine.run_share``), so a simulator using it
+    produces the engine's episode.  Per step: ``seen = observe(s)`` goes to the policy, its
+    action goes through ``command``, then ``push(s)``, then the model's ``mdp_step`` with
+    ``params``; ``advance()`` after the step."""
+
+    def __init__(self, problem, disturbance: Disturbance, n_step: int | None = None) -> None:
+        from sim_nodes.draws import LATENCY
+        self.problem = problem
+        self.dist = disturbance.pack(problem)
+        self.n_step = problem.n_step if n_step is None else n_step
+        self.nominal = problem.params()
+        self.params = self.nominal.copy()
+        latency = int(self.dist[LATENCY]) if self.dist[ON] else 0
+        self.history = np.zeros(latency + 1)
+        count = int(self.dist[PUSHES]) if self.dist[ON] else 0
+        self.push_at = np.zeros(count, dtype=np.int64)
+        self.push_dv = np.zeros(count)
+        self.push_on = np.zeros(count, dtype=np.int64)
+        self.key, self.gain, self.step = 0, 1.0, 0
+
+    @property
+    def on(self) -> bool:
+        return bool(self.dist[ON])
+
+    def reset(self, key: tuple) -> np.ndarray:
+        """Start the episode of draw key (seed, generation, policy, episode); its initial
+        state."""
+        from sim_nodes.draws import episode_key, start_episode
+        s = self.problem.initial_state.copy()
+        self.params = self.nominal.copy()
+        self.step = 0
+        self.history[:] = 0.0
+        if self.on:
+            self.key = episode_key(*(int(k) for k in key))
+            self.gain = start_episode(self.dist, self.key, self.problem.initial_state,
+                                      self.nominal, self.problem.is_angle, self.n_step, s,
+                                      self.params, self.push_at, self.push_dv, self.push_on)
+        return s
+
+    def observe(self, s: np.ndarray) -> np.ndarray:
+        """What the policy sees of the state ``s`` at this step."""
+        if not self.on:
+            return s.copy()
+        from sim_nodes.draws import observe
+        o = np.empty_like(s)
+        observe(self.dist, self.key, self.step, s, self.problem.is_angle, o)
+        return o
+
+    def command(self, action: float) -> float:
+        """What the actuator applies at this step, given the action just selected."""
+        if not self.on:
+            return float(action)
+        from sim_nodes.draws import command
+        return command(self.history, self.step, float(action), self.gain)
+
+    def push(self, s: np.ndarray) -> None:
+        """This step's pushes on the state ``s`` (in place), before the model step."""
+        if self.on:
+            from sim_nodes.draws import push
+            push(self.step, self.push_at, self.push_dv, self.push_on, s)
+
+    def advance(self) -> None:
+        self.step += 1

@@ -187,3 +187,27 @@ def test_bad_profiles_are_refused_with_one_line(acrobot_problem, doc, message):
         parse_disturbance(doc, 'bad.yaml').pack(acrobot_problem)
     with pytest.raises(ConfigError, match='unknown disturbance'):
         load_disturbance('nosuchprofile')
+
+
+def test_a_simulator_stepping_the_plant_reproduces_the_engine(acrobot_problem, policies):
+    """``Plant``, step by step as the simulator node runs it, with the policy answering what
+    it sees: the engine's traced episode, bit for bit, for every disturbance kind."""
+    from sapga_ros.evaluation.state_selector import StateSelector
+    from sim_nodes.disturbance import Plant
+    d = dataclasses.replace(load_disturbance('field'), pushes=2, push_size=0.3, gain=0.1)
+    key = (4, 0, 1, 2)
+    ep = ev(acrobot_problem, d).episode(policies[6], key)
+    plant = Plant(acrobot_problem, d, N)
+    select = StateSelector(policies[6])
+    s = plant.reset(key)
+    states, actions = [s.copy()], []
+    step = model_module('acrobot').mdp_step
+    for _ in range(ep.steps):
+        a = plant.command(select.select(plant.observe(s))[1])
+        plant.push(s)
+        step(s, a, plant.params)
+        plant.advance()
+        states.append(s.copy())
+        actions.append(a)
+    np.testing.assert_array_equal(np.array(states), ep.states)
+    np.testing.assert_array_equal(np.array(actions), ep.actions)
