@@ -242,7 +242,8 @@ class Plant:
         self.step = 0
         self.history[:] = 0.0
         if self.on:
-            self.key = episode_key(*(int(k) for k in key))
+            # as a numpy word: a Python int above 2^63 would not fit the kernels' int64
+            self.key = np.uint64(episode_key(*(int(k) for k in key)))
             self.gain = start_episode(self.dist, self.key, self.problem.initial_state,
                                       self.nominal, self.problem.is_angle, self.n_step, s,
                                       self.params, self.push_at, self.push_dv, self.push_on)

@@ -22,6 +22,9 @@ from sim_nodes.models.common import wrap_angle
 #                  spread (D), sigma (D), push mask (D), mismatch (len p)]
 ON, LATENCY, GAIN, PUSHES, PUSH_SIZE, MISMATCH, HEAD = range(7)
 OFF = np.zeros(HEAD)                      # the undisturbed profile
+# the ``policy`` slot of a key: every policy of a training run meets the same draws
+# (TRAINING), evaluations and the simulator node draw episodes training never saw (HELD_OUT)
+TRAINING, HELD_OUT = 0, 1
 # streams: what a draw is for
 S_INITIAL, S_PARAMS, S_GAIN, S_PUSH, S_NOISE = range(5)
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)

@@ -109,7 +109,7 @@ def test_mismatch_is_the_model_with_drawn_parameters(acrobot_problem, policies):
     p = acrobot_problem.params()
     names = ('dt', 'substeps') + model_module('acrobot').PARAMS
     q = p.copy()
-    k = episode_key(*key)
+    k = np.uint64(episode_key(*key))
     for name, size in (('m1', 0.1), ('m2', 0.1), ('g', 0.2)):
         i = names.index(name)
         q[i] = p[i] * (1.0 + symmetric(k, S_PARAMS, i, size))
@@ -133,8 +133,8 @@ def test_pushes_are_velocity_changes_at_drawn_steps(acrobot_problem, policies):
     problem = acrobot_problem
     ep = ev(problem, d).episode(policies[5], key)
     at, dv, on = np.zeros(2, np.int64), np.zeros(2), np.zeros(2, np.int64)
-    start_episode(d.pack(problem), episode_key(*key), problem.initial_state, problem.params(),
-                  problem.is_angle, N, np.zeros(4), np.zeros(12), at, dv, on)
+    start_episode(d.pack(problem), np.uint64(episode_key(*key)), problem.initial_state,
+                  problem.params(), problem.is_angle, N, np.zeros(4), np.zeros(12), at, dv, on)
     assert set(on) <= {2, 3} and np.all(np.abs(dv) <= 1.0)     # velocity coordinates
     np.testing.assert_array_equal(replay(problem, ep, pushes=list(zip(at, on, dv))),
                                   ep.states)

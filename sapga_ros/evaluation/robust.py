@@ -16,8 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sapga_ros.errors import ConfigError
-
-TRAINING, HELD_OUT = 0, 1                  # the ``policy`` slot of a draw key
+from sim_nodes.draws import HELD_OUT, TRAINING
 STAT_RE = re.compile(r'^(mean|q(\d{1,2}))$')
 
 
@@ -61,6 +60,15 @@ def statistic(values: np.ndarray, stat: str, worse_high: bool = False) -> np.nda
     return np.quantile(values, 1.0 - q if worse_high else q, axis=-1)
 
 
+def _each_episode(evaluator, policies: list, keys: np.ndarray):
+    """The evaluator's result of each (policy, key) row, one episode each."""
+    saved, evaluator.robust = evaluator.robust, None
+    try:
+        return evaluator.evaluate(policies, keys)
+    finally:
+        evaluator.robust = saved
+
+
 def evaluate_robust(evaluator, policies: list, robust: Robust):
     """``BatchResult`` of ``policies``, each on ``robust.episodes`` disturbed episodes:
     value = the statistic of the returns, delta* = the same statistic of the episodes' delta*
@@ -69,11 +77,7 @@ def evaluate_robust(evaluator, policies: list, robust: Robust):
     from sapga_ros.evaluation.evaluator import BatchResult
     k = robust.episodes
     count = len(policies)
-    saved, evaluator.robust = evaluator.robust, None
-    try:
-        r = evaluator.evaluate([p for p in policies for _ in range(k)], robust.keys(count))
-    finally:
-        evaluator.robust = saved
+    r = _each_episode(evaluator, [p for p in policies for _ in range(k)], robust.keys(count))
 
     def per(a: np.ndarray) -> np.ndarray:
         return a.reshape(count, k)
@@ -93,11 +97,7 @@ def episodes_summary(evaluator, policy, robust: Robust, purpose: int = HELD_OUT)
     hold fraction and delta* distributions, rail contacts."""
     from sim_nodes.goal import hold_measures
     k = robust.episodes
-    saved, evaluator.robust = evaluator.robust, None
-    try:
-        r = evaluator.evaluate([policy] * k, robust.keys(1, purpose))
-    finally:
-        evaluator.robust = saved
+    r = _each_episode(evaluator, [policy] * k, robust.keys(1, purpose))
     holds = [hold_measures(int(r.first_entry[e]), int(r.held[e]), int(r.steps[e]),
                            int(r.contacts[e])) for e in range(k)]
     fraction = np.array([h['hold_fraction'] for h in holds])

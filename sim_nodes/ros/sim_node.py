@@ -30,6 +30,8 @@ from std_msgs.msg import Float64, String
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
+from sim_nodes.disturbance import Plant, load_disturbance
+from sim_nodes.draws import HELD_OUT
 from sim_nodes.goal import goal_arrays, goal_delta, hold_measures
 from sim_nodes.models import MODELS, model_module
 from sim_nodes.models.registry import GENERIC_SIM, sim_executable
@@ -59,7 +61,6 @@ class SimNode(Node):
         name = declare(self, sim_parameters(default_problem)[:1])['problem']
         self.problem = problem = load_problem(name)
         self._mdp_step = model_module(problem.model).mdp_step
-        self._p = problem.params()
         self._best, self._inv_scale, self._fixed = goal_arrays(problem)
         self._is_angle = problem.is_angle
         self._s0 = problem.initial_state
@@ -69,6 +70,8 @@ class SimNode(Node):
         self._markers = PendulumMarkers(problem)
         self.qos_profile = declare_settings(self, problem)
         self.settings = read_settings(self)
+        self._plant = Plant(problem, load_disturbance(self.get_parameter('disturbance').value))
+        self._draw_seed = self.get_parameter('disturbance_seed').value
         self.commands = CommandCheck(float(np.max(np.abs(problem.action_values))),
                                      self.get_logger())
 
@@ -93,6 +96,7 @@ class SimNode(Node):
 
         # episode state
         self._s = self._s0.copy()
+        self._seen = self._s0.copy()   # what the policy is told: the state + sensor noise
         self._state_msg = self._layout.new_msg()
         self._reward_msg = Float64()
         self._clock_msg = Clock()
@@ -220,7 +224,11 @@ class SimNode(Node):
 
     def _step_once(self, action: float) -> None:
         """Evaluator's episode loop body: step, count the reward, then test the goal."""
-        reward = self._mdp_step(self._s, action, self._p)
+        action = self._plant.command(action)    # late, gain error (none: as given)
+        self._plant.push(self._s)
+        reward = self._mdp_step(self._s, action, self._plant.params)
+        self._plant.advance()
+        self._seen = self._plant.observe(self._s)
         self._step += 1
         self.total_steps += 1
         self._return += reward
@@ -248,7 +256,9 @@ class SimNode(Node):
             self._end_episode('step_limit', d)
 
     def _start_episode(self) -> None:
-        self._s[:] = self._s0
+        self._plant.n_step = self.settings.n_step
+        self._s[:] = self._plant.reset((self._draw_seed, 0, HELD_OUT, self._episode))
+        self._seen = self._plant.observe(self._s)
         self._episode += 1
         self._step = 0
         self._return = 0.0
@@ -277,7 +287,7 @@ class SimNode(Node):
     def _publish_state(self) -> None:
         """Publish the state (its markers and /clock) at the current tick."""
         ns = self._tick * self._tick_ns
-        self._layout.fill(self._state_msg, self._s, self._effort, ns)
+        self._layout.fill(self._state_msg, self._seen, self._effort, ns)
         self._state_pub.publish(self._state_msg)
         s = self.settings
         self._marker_msg = self._markers.state(self._s, ns, s.delta) if s.markers else None

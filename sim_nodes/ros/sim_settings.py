@@ -12,8 +12,10 @@ step per tick of wall time / ``real_time_factor``, zero-order hold on the latest
 ``auto_reset``, ``max_episodes`` (the reset service still starts episodes beyond it),
 ``republish_period`` (lockstep: the waiting state again, same stamp), ``publish_clock``
 (false for all but one of several simulators in one domain), ``markers``, ``qos_profile``
-(read-only; ``sensor_data``: best effort, depth 5, for realtime runs), and the recorder
-gate's ``wait_for_recorder`` and ``recorder_timeout`` (``recorder_gate.py``).
+(read-only; ``sensor_data``: best effort, depth 5, for realtime runs), ``disturbance`` and
+``disturbance_seed`` (read-only; the plant is disturbed as the episode engine disturbs it,
+``sim_nodes.disturbance.Plant``), and the recorder gate's ``wait_for_recorder`` and
+``recorder_timeout`` (``recorder_gate.py``).
 """
 from __future__ import annotations
 
@@ -67,6 +69,11 @@ def sim_parameters(default_problem: str) -> list[Param]:
         Param('markers', True, 'publish the pendulum as visualization_msgs/MarkerArray'),
         Param('qos_profile', 'reliable', 'reliable (the problem ros.qos) | sensor_data (best '
               'effort)', choices=QOS_PROFILES, read_only=True),
+        Param('disturbance', 'none', 'disturbance profile of the plant (a name in '
+              'msg_configs/disturbances or a .yaml file): noise on the published state, '
+              'latency, gain, model error, pushes; none: the model', read_only=True),
+        Param('disturbance_seed', 0, 'seed of the disturbances: episode k is drawn as the '
+              'evaluation\'s episode k - 1 of this seed', 0, MAX_COUNT, read_only=True),
         *gate_parameters()]
 
 
