@@ -122,7 +122,19 @@ def test_experiment_rows_take_the_robust_settings():
     for bad, message in (({'disturbance': 'gust'}, "unknown disturbance 'gust'"),
                          ({'robust_stat': 'q'}, 'robust_stat: expected mean or qNN'),
                          ({'episodes': 0}, r'episodes: expected a whole number in \[1, 10000\]'),
-                         ({'method': 'ql', 'episodes': 2}, 'SAP-GA rows only')):
+                         ({'method': 'ql', 'episodes': 2}, 'SAP-GA and CMA-ES rows only')):
         with pytest.raises(ConfigError, match=r'set\.experiments\[0\].*' + message):
             _experiment({**row, **bad}, 'set.experiments[0]')
     assert any(e.catch == 'lqr' for e in load_experiments('hold')[0])
+
+
+def test_cmaes_takes_robust_fitness(acrobot_problem):
+    from sapga_ros.optim.cmaes import train_cmaes
+    from sapga_ros.training.loop import make_evaluator
+    config = TrainConfig(problem='acrobot', seed=1, disturbance='field', episodes=3)
+    robust = make_evaluator(config, acrobot_problem, 0.02)
+    policy, history = train_cmaes('acrobot', 0.02, 20_000, 1, exemplars=10, popsize=6,
+                                  evaluator=robust)
+    again = evaluate_robust(robust, [policy], robust.robust)
+    assert policy.meta['value'] == again.returns[0]       # its value: the mean of 3 episodes
+    assert history[0]['steps'] == 6 * 3 * 400             # K episodes a candidate

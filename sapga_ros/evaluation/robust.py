@@ -132,3 +132,15 @@ def robustness(policy, delta: float, disturbance: str, episodes: int, seed: int 
     evaluator = Evaluator(policy.problem, delta, n_step,
                           disturbance=load_disturbance(disturbance))
     return episodes_summary(evaluator, policy, Robust(episodes, seed=seed))
+
+
+def robust_evaluator(problem, delta: float, disturbance: str, episodes: int, stat: str,
+                     seed: int):
+    """The evaluator of robust fitness (each policy on ``episodes`` episodes of profile
+    ``disturbance``), or None for the plain evaluation (none, one episode)."""
+    if disturbance == 'none' and episodes == 1:
+        return None
+    from sapga_ros.evaluation.evaluator import Evaluator
+    from sim_nodes.disturbance import load_disturbance
+    return Evaluator(problem, delta, disturbance=load_disturbance(disturbance),
+                     robust=Robust(episodes, stat, seed))

@@ -154,14 +154,17 @@ class CmaesSearch:
 
 def train_cmaes(problem_name: str, delta: float | None, steps: int, seed: int,
                 exemplars: int = 50, sigma0: float = 0.3, popsize: int | None = None,
-                progress: Progress | None = None) -> tuple[ExemplarPolicy, list[dict]]:
+                progress: Progress | None = None,
+                evaluator: Evaluator | None = None) -> tuple[ExemplarPolicy, list[dict]]:
     """Run CMA-ES on ``problem_name`` until ``steps`` MDP steps are simulated (the
     generation that crosses the budget completes, as in SAP-GA); return the best policy
     (its ``meta``: value, delta_star, run_delta_star, steps, seed, method) and the log, one
-    row per generation (``progress(row)`` is called with each)."""
+    row per generation (``progress(row)`` is called with each).  ``evaluator``: another
+    evaluation of the same problem and delta (robust fitness:
+    ``sapga_ros.evaluation.robust``)."""
     problem = load_problem(problem_name)
     delta = problem.resolve('delta', delta)
-    evaluator = Evaluator(problem, delta)
+    evaluator = evaluator or Evaluator(problem, delta)
     search = CmaesSearch(problem, CmaesParams(exemplars, sigma0, popsize), seed)
     history: list[dict] = []
     start = time.perf_counter()

@@ -95,8 +95,9 @@ def _robust(exp: Experiment, where: str) -> None:
         check_stat(exp.robust_stat)
     except ConfigError as exc:
         raise ConfigError(f'{where}: {exc}') from None
-    if (exp.disturbance != 'none' or exp.episodes > 1) and exp.method != 'sapga':
-        raise ConfigError(f'{where}: disturbance and episodes: SAP-GA rows only')
+    robust = exp.disturbance != 'none' or exp.episodes > 1
+    if robust and exp.method not in ('sapga', 'cmaes'):
+        raise ConfigError(f'{where}: disturbance and episodes: SAP-GA and CMA-ES rows only')
 
 
 def _experiment(e: Any, where: str) -> Experiment:
@@ -234,9 +235,13 @@ def run_seeds(exp: Experiment, seeds: list[int], steps: int) -> list[dict]:
     if exp.method == 'classical':       # deterministic: the same controller every seed
         done = [_classical(exp) for _ in seeds]
     elif exp.method == 'cmaes':
+        from sapga_ros.evaluation.robust import robust_evaluator
         from sapga_ros.optim.cmaes import train_cmaes
         set_jobs(1)
-        done = [train_cmaes(exp.problem, exp.delta, steps, seed, popsize=CMAES_POP)
+        done = [train_cmaes(exp.problem, exp.delta, steps, seed, popsize=CMAES_POP,
+                            evaluator=robust_evaluator(
+                                load_problem(exp.problem), exp.delta, exp.disturbance,
+                                exp.episodes, exp.robust_stat, seed))
                 for seed in seeds]
     else:
         configs = [TrainConfig(problem=exp.problem, method=exp.method, delta=exp.delta,

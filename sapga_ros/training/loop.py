@@ -31,7 +31,7 @@ import numpy as np
 from sapga_ros import __version__
 from sapga_ros.errors import CheckpointError, ConfigError
 from sapga_ros.evaluation.evaluator import Evaluator, set_jobs
-from sapga_ros.evaluation.robust import Robust, check_stat
+from sapga_ros.evaluation.robust import check_stat, robust_evaluator
 from sapga_ros.exemplars.policy import ExemplarPolicy
 from sapga_ros.io.atomic import write_atomic
 from sapga_ros.optim.base import Optimizer
@@ -274,13 +274,10 @@ def _rounds(config: TrainConfig, initial: list[ExemplarPolicy] = (),
 def make_evaluator(config: TrainConfig, problem: Problem, delta: float) -> Evaluator:
     """The run's evaluator: with robust fitness, every policy on ``episodes`` episodes of the
     ``disturbance`` profile (``sapga_ros.evaluation.robust``)."""
-    if not config.disturbed:
-        return Evaluator(problem, delta)
-    if config.method != 'sapga':
+    if config.disturbed and config.method != 'sapga':
         raise ConfigError('--disturbance and --episodes evaluate policies: SAP-GA only')
-    from sim_nodes.disturbance import load_disturbance
-    return Evaluator(problem, delta, disturbance=load_disturbance(config.disturbance),
-                     robust=Robust(config.episodes, config.robust_stat, config.seed))
+    return robust_evaluator(problem, delta, config.disturbance, config.episodes,
+                            config.robust_stat, config.seed) or Evaluator(problem, delta)
 
 
 def hold_of(policy: Any, delta: float) -> dict:
