@@ -5,9 +5,8 @@ batch; ``Evaluator.episode`` runs one policy with its trajectory recorded.  Fitn
 episode's accumulated reward; the evaluation is deterministic.
 
 With a disturbance profile (``sim_nodes.disturbance``) each episode is disturbed by draws
-keyed by its row of ``keys`` (seed, generation, policy, episode); with ``robust`` settings
-(``sapga_ros.evaluation.robust``) ``evaluate`` runs every policy on that many disturbed
-episodes and returns their statistic as its value.
+keyed by its row of ``keys`` (seed, generation, policy, episode); robust fitness (each
+policy on K disturbed episodes) is ``sapga_ros.evaluation.robust.RobustEvaluator``.
 """
 from __future__ import annotations
 
@@ -83,8 +82,7 @@ class Evaluator:
     ``delta``."""
 
     def __init__(self, problem: Problem, delta: float | None = None,
-                 n_step: int | None = None, disturbance: Disturbance | None = None,
-                 robust=None) -> None:
+                 n_step: int | None = None, disturbance: Disturbance | None = None) -> None:
         self.problem = problem
         self.delta = problem.resolve('delta', delta)
         self.n_step = problem.resolve('n_step', n_step)
@@ -105,7 +103,6 @@ class Evaluator:
                      problem.end_stop == 'fail')
         self.disturbance = disturbance or Disturbance()
         self.dist = self.disturbance.pack(problem)
-        self.robust = robust       # sapga_ros.evaluation.robust.Robust: K episodes a policy
 
     def _consts(self):
         return (self.s0, self.params, self.inv_range, self.is_angle, *self.goal, self.delta,
@@ -151,11 +148,7 @@ class Evaluator:
     def evaluate(self, policies: list[ExemplarPolicy],
                  keys: np.ndarray | None = None) -> BatchResult:
         """Evaluate every policy once (in parallel on the configured threads), disturbed by
-        the draws of ``keys`` (P, 4) (None: all zero); with ``robust`` settings, on their
-        episodes (``sapga_ros.evaluation.robust.evaluate_robust``)."""
-        if self.robust is not None:
-            from sapga_ros.evaluation.robust import evaluate_robust
-            return evaluate_robust(self, policies, self.robust)
+        the draws of ``keys`` (P, 4) (None: all zero)."""
         count = len(policies)
         style, ex, ex2, act, val, lengths = self.pack(policies)
         returns = np.empty(count)

@@ -16,6 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from sapga_ros.errors import ConfigError
+from sapga_ros.evaluation.evaluator import BatchResult, Evaluator
+from sim_nodes.disturbance import Disturbance, load_disturbance
 from sim_nodes.draws import HELD_OUT, TRAINING
 STAT_RE = re.compile(r'^(mean|q(\d{1,2}))$')
 
@@ -60,13 +62,22 @@ def statistic(values: np.ndarray, stat: str, worse_high: bool = False) -> np.nda
     return np.quantile(values, 1.0 - q if worse_high else q, axis=-1)
 
 
-def _each_episode(evaluator, policies: list, keys: np.ndarray):
-    """The evaluator's result of each (policy, key) row, one episode each."""
-    saved, evaluator.robust = evaluator.robust, None
-    try:
-        return evaluator.evaluate(policies, keys)
-    finally:
-        evaluator.robust = saved
+def _each_episode(evaluator, policies: list, keys: np.ndarray) -> BatchResult:
+    """The plain result of each (policy, key) row, one episode each."""
+    return Evaluator.evaluate(evaluator, policies, keys)
+
+
+class RobustEvaluator(Evaluator):
+    """An ``Evaluator`` whose ``evaluate`` is robust fitness (``evaluate_robust``)."""
+
+    def __init__(self, problem, delta: float, disturbance: Disturbance, robust: Robust) -> None:
+        super().__init__(problem, delta, disturbance=disturbance)
+        self.robust = robust
+
+    def evaluate(self, policies: list, keys: None = None) -> BatchResult:
+        if keys is not None:
+            raise ConfigError('robust fitness draws its own keys')
+        return evaluate_robust(self, policies, self.robust)
 
 
 def evaluate_robust(evaluator, policies: list, robust: Robust):
@@ -74,7 +85,6 @@ def evaluate_robust(evaluator, policies: list, robust: Robust):
     value = the statistic of the returns, delta* = the same statistic of the episodes' delta*
     (its bad tail), steps = all steps simulated, reached = in every episode, used = referred
     to in any; hold measures: first entry the latest, held and contacts summed."""
-    from sapga_ros.evaluation.evaluator import BatchResult
     k = robust.episodes
     count = len(policies)
     r = _each_episode(evaluator, [p for p in policies for _ in range(k)], robust.keys(count))
@@ -122,9 +132,7 @@ def robustness(policy, delta: float, disturbance: str, episodes: int, seed: int 
                n_step: int | None = None) -> dict:
     """``episodes_summary`` of an exemplar or classical policy under profile
     ``disturbance`` (a name or a .yaml file), on held-out draws of ``seed``."""
-    from sapga_ros.evaluation.evaluator import Evaluator
     from sapga_ros.exemplars.policy import ExemplarPolicy
-    from sim_nodes.disturbance import load_disturbance
     if not isinstance(policy, ExemplarPolicy):
         raise ConfigError('disturbed episodes run exemplar and classical policies; a '
                           'Q-learning table is run undisturbed (sapga eval without '
@@ -140,7 +148,5 @@ def robust_evaluator(problem, delta: float, disturbance: str, episodes: int, sta
     ``disturbance``), or None for the plain evaluation (none, one episode)."""
     if disturbance == 'none' and episodes == 1:
         return None
-    from sapga_ros.evaluation.evaluator import Evaluator
-    from sim_nodes.disturbance import load_disturbance
-    return Evaluator(problem, delta, disturbance=load_disturbance(disturbance),
-                     robust=Robust(episodes, stat, seed))
+    return RobustEvaluator(problem, delta, load_disturbance(disturbance),
+                           Robust(episodes, stat, seed))
