@@ -273,15 +273,16 @@ class Probe(Node):
         return self.event('goal', episode) or self.event('step_limit', episode)
 
 
-def run_lockstep(ros, problem, policy, path, delta, episodes=2):
-    """Sim (lockstep) + policy node + probe in process; the policy is set once all match."""
+def run_lockstep(ros, problem, policy, path, delta, episodes=2, **sim_params):
+    """Sim (lockstep) + policy node + probe in process; the policy is set once all match
+    (``sim_params``: more simulator parameters)."""
     from sapga_ros.nodes.policy_node import PolicyNode
     from sim_nodes.ros.sim_node import SimNode
     probe = ros.start(Probe, problem=problem)
     pol = ros.start(PolicyNode, params={'problem': problem.name})
     sim = ros.start(SimNode, params={'problem': problem.name, 'mode': 'lockstep',
                                      'delta': delta, 'max_episodes': episodes,
-                                     'republish_period': 0.05})
+                                     'republish_period': 0.05, **sim_params})
     ros.wait_for(lambda: sim._state_pub.get_subscription_count() == 2
                  and sim._stamped_sub.get_publisher_count() == 2 and probe.states,
                  'discovery of sim, policy node and probe')

@@ -19,7 +19,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from sapga_ros.exemplars.policy import load_policy
+from sapga_ros.policies.runnable import load_policy
 from sapga_ros.nodes.joint_mapping import JointMapping, RobotState
 from sapga_ros.nodes.policy_loader import PreparedPolicy
 from sim_nodes.goal import goal_arrays, goal_delta, hold_measures

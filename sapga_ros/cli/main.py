@@ -4,6 +4,8 @@
                 [--jobs J] [--out FILE] [--checkpoint DIR] [--resume] [--init FILE ...]
                 [--style S] [--pop N] [--children N] [--l-min N] [--l-max N] ...
     sapga eval POLICY [--delta D] [--max-steps N] [--json]
+               [--disturbance NAME [--episodes N] [--seed S]]
+    sapga robustness POLICY ... --out DIR [--disturbance NAME ...] [--scales F,F,...]
     sapga exemplars POLICY [--json] [--plot OUT.png] [--prune-unused OUT.json]
     sapga bench [--json] [--ros [--problem P]] [--style S] [--training]
     sapga inspect BAG [--json] [--plot OUT.png] [--episode N]
@@ -30,12 +32,13 @@ import json
 import sys
 from pathlib import Path
 
-from sapga_ros.cli.args import add_param, check_output_file, episode_steps
+from sapga_ros.cli.args import add_param, check_output_file, episode_steps, nonneg_int
 from sapga_ros.cli.classical import add_classical_arguments, cmd_classical
 from sapga_ros.cli.experiment import (add_experiment_arguments, add_limit_arguments,
                                       cmd_experiment, cmd_limit)
 from sapga_ros.cli.recordings import (add_bag_arguments, add_inspect_arguments, cmd_bag,
                                       cmd_inspect)
+from sapga_ros.cli.robustness import add_robustness_arguments, cmd_robustness
 from sapga_ros.cli.train import add_train_arguments, cmd_train
 from sapga_ros import package_version
 from sapga_ros.errors import SapgaError
@@ -61,6 +64,15 @@ def build_parser() -> argparse.ArgumentParser:
     add_param(e, DELTA, help=POLICY_DELTA)
     e.add_argument('--max-steps', type=episode_steps, help='N_step (default: the problem\'s)')
     e.add_argument('--json', action='store_true', help='print one JSON object')
+    e.add_argument('--disturbance', metavar='NAME',
+                   help='run --episodes episodes disturbed by this profile (a name in '
+                        'msg_configs/disturbances or a .yaml file) and report the success '
+                        'rate and the distributions of hold fraction, delta* and rail contacts')
+    e.add_argument('--episodes', type=episode_steps, default=100,
+                   help='disturbed episodes (default 100)')
+    e.add_argument('--seed', type=nonneg_int, default=0,
+                   help='seed of the disturbances drawn (default 0; never the draws a '
+                        'training run used)')
 
     x = sub.add_parser('exemplars', help='list, plot or prune a policy\'s exemplars')
     x.add_argument('policy')
@@ -96,6 +108,9 @@ def build_parser() -> argparse.ArgumentParser:
         'classical', help='write the classical controller (LQR behind an energy swing-up) '
         'as a policy file'))
 
+    add_robustness_arguments(sub.add_parser(
+        'robustness', help='success-rate curves of policies against each disturbance\'s size'))
+
     # `sapga launch ...` goes to the launch itself (main); listed here for `sapga --help`
     sub.add_parser('launch', help='start a group of nodes (swingup, train_deploy; sapga '
                    'launch --help)', add_help=False)
@@ -107,6 +122,8 @@ def cmd_eval(args) -> int:
     from sapga_ros.policies.kinds import load_any_policy, policy_delta
     policy = load_any_policy(args.policy)
     delta = policy_delta(policy, args.delta)
+    if args.disturbance:
+        return _eval_disturbed(args, policy, delta)
     ep = run_policy_episode(policy, delta, args.max_steps)
     if args.json:
         print(json.dumps(ep.summary()))
@@ -118,6 +135,21 @@ def cmd_eval(args) -> int:
             hold = ep.summary()
             print(f'  first entry step {hold["first_entry_step"]}, hold fraction '
                   f'{hold["hold_fraction"]:.4f}, rail contacts {hold["rail_contacts"]}')
+    return 0
+
+
+def _eval_disturbed(args, policy, delta: float) -> int:
+    from sapga_ros.evaluation.robust import robustness
+    out = robustness(policy, delta, args.disturbance, args.episodes, args.seed, args.max_steps)
+    if args.json:
+        print(json.dumps(out))
+        return 0
+    print(f"{policy.problem.name} under {out['disturbance']}, {out['episodes']} episodes: "
+          f"success {out['success_rate']:.3f} ({out['success']}), delta* median "
+          f"{out['delta_star']['median']:.4f} (q90 {out['delta_star']['q90']:.4f}), hold "
+          f"fraction mean {out['hold_fraction']['mean']:.3f}, rail contacts "
+          f"{out['rail_contacts']['total']} in {out['rail_contacts']['episodes_with']} "
+          'episodes')
     return 0
 
 
@@ -221,7 +253,8 @@ def cmd_launch(argv: list[str]) -> int:
 
 COMMANDS = {'train': cmd_train, 'eval': cmd_eval, 'exemplars': cmd_exemplars,
             'bench': cmd_bench, 'inspect': cmd_inspect, 'bag': cmd_bag,
-            'experiment': cmd_experiment, 'limit': cmd_limit, 'classical': cmd_classical}
+            'experiment': cmd_experiment, 'limit': cmd_limit, 'classical': cmd_classical,
+            'robustness': cmd_robustness}
 
 
 def main(argv: list[str] | None = None) -> int:

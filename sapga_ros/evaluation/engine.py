@@ -24,6 +24,8 @@ import numpy as np
 from numba import prange
 
 from sapga_ros.evaluation.control import choose
+from sim_nodes.draws import (LATENCY, MISMATCH, ON, PUSHES, command, episode_key, observe, push,
+                             start_episode)
 from sim_nodes.goal import goal_delta
 from sim_nodes.jit import kernel
 from sim_nodes.models.dispatch import step_lanes
@@ -36,8 +38,8 @@ BLOCKS_PER_THREAD = 4  # shares of a batch per thread, for load balance
 def run_share(model, style, ex, ex2, act, val, lengths, first, stop, s0, p, inv_range,
               is_angle, best, inv_scale, fixed, delta, n_step, actions, radius2, goal_u,
               alt_inv_scale, alt_fixed, ends_in_goal, hold_bonus, contact_below, fail_on_contact,
-              ctl, returns, steps, dstar, dstar_alt, reached, used, first_entry, held, contacts,
-              tr_state, tr_idx, tr_act, tr_reward):
+              ctl, dist, keys, returns, steps, dstar, dstar_alt, reached, used, first_entry, held,
+              contacts, tr_state, tr_idx, tr_act, tr_reward):
     """Evaluate policies first..stop-1 on LANES lanes.
 
     The hold task: with ``ends_in_goal`` false an episode runs all n_step steps;
@@ -69,6 +71,20 @@ def run_share(model, style, ex, ex2, act, val, lengths, first, stop, s0, p, inv_
     progress = np.zeros(LANES, dtype=np.int64)  # the selector's per-episode state
     trace = tr_state.shape[0] > n_step
     alt = alt_inv_scale.shape[0] > 0
+    disturbed = dist[ON] > 0.0
+    own_params = disturbed and dist[MISMATCH] > 0.0   # each lane steps its own plant
+    obs = np.empty((dim, LANES))                # what the selector sees
+    plant = np.empty((LANES, p.shape[0]))      # each lane's plant parameters
+    n_push = int(dist[PUSHES]) if disturbed else 0
+    push_at = np.zeros((LANES, n_push), dtype=np.int64)
+    push_dv = np.zeros((LANES, n_push))
+    push_on = np.zeros((LANES, n_push), dtype=np.int64)
+    history = np.zeros((LANES, (int(dist[LATENCY]) if disturbed else 0) + 1))
+    gain = np.ones(LANES)
+    key = np.zeros(LANES, dtype=np.uint64)
+    s1 = np.empty((dim, 1))
+    a1 = np.empty(1)
+    r1 = np.empty(1)
     for lane in range(LANES):
         S[:, lane] = s0
     nxt = first
@@ -83,12 +99,23 @@ def run_share(model, style, ex, ex2, act, val, lengths, first, stop, s0, p, inv_
                 dstar[nxt] = goal_delta(s0, best, inv_scale, fixed, is_angle)
                 if alt:
                     dstar_alt[nxt] = goal_delta(s0, best, alt_inv_scale, alt_fixed, is_angle)
+                if disturbed:
+                    key[lane] = episode_key(keys[nxt, 0], keys[nxt, 1], keys[nxt, 2],
+                                            keys[nxt, 3])
+                    gain[lane] = start_episode(dist, key[lane], s0, p, is_angle, n_step,
+                                               S[:, lane], plant[lane], push_at[lane],
+                                               push_dv[lane], push_on[lane])
+                    history[lane, :] = 0.0
+                    dstar[nxt] = goal_delta(S[:, lane], best, inv_scale, fixed, is_angle)
+                    if alt:
+                        dstar_alt[nxt] = goal_delta(S[:, lane], best, alt_inv_scale, alt_fixed,
+                                                    is_angle)
                 reached[nxt] = False
                 first_entry[nxt] = 0
                 held[nxt] = 0
                 contacts[nxt] = 0
                 if trace and nxt == 0:
-                    tr_state[0, :] = s0
+                    tr_state[0, :] = S[:, lane]
                 nxt += 1
                 active += 1
         if active == 0:
@@ -96,14 +123,30 @@ def run_share(model, style, ex, ex2, act, val, lengths, first, stop, s0, p, inv_
         for lane in range(LANES):
             k = pol[lane]
             if k >= 0:
+                seen = S[:, lane]
+                if disturbed:
+                    observe(dist, key[lane], steps[k], S[:, lane], is_angle, obs[:, lane])
+                    seen = obs[:, lane]
                 j, a[lane], progress[lane] = choose(
-                    style, model, S[:, lane], ex[k], ex2[k], act[k], val[k], lengths[k],
+                    style, model, seen, ex[k], ex2[k], act[k], val[k], lengths[k],
                     actions, p, inv_range, is_angle, radius2, goal_u, progress[lane], used[k],
                     u, acc, w_state, w_act, w_rew, ctl[k], best, x)
+                if disturbed:
+                    a[lane] = command(history[lane], steps[k], a[lane], gain[lane])
+                    push(steps[k], push_at[lane], push_dv[lane], push_on[lane], S[:, lane])
                 if trace and k == 0:
                     tr_idx[steps[k]] = j
                     tr_act[steps[k]] = a[lane]
-        step_lanes(model, S, a, p, S.shape[1], r)  # not the literal LANES: keeps it a loop
+        if own_params:                          # mismatched plants: one lane at a time
+            for lane in range(LANES):
+                if pol[lane] >= 0:
+                    s1[:, 0] = S[:, lane]
+                    a1[0] = a[lane]
+                    step_lanes(model, s1, a1, plant[lane], 1, r1)
+                    S[:, lane] = s1[:, 0]
+                    r[lane] = r1[0]
+        else:
+            step_lanes(model, S, a, p, S.shape[1], r)  # not the literal LANES: keeps a loop
         for lane in range(LANES):
             k = pol[lane]
             if k < 0:
@@ -144,9 +187,10 @@ def run_share(model, style, ex, ex2, act, val, lengths, first, stop, s0, p, inv_
 def evaluate_batch(model, style, ex, ex2, act, val, lengths, s0, p, inv_range, is_angle,
                    best, inv_scale, fixed, delta, n_step, actions, radius2, goal_u,
                    alt_inv_scale, alt_fixed, ends_in_goal, hold_bonus, contact_below,
-                   fail_on_contact, ctl, shares, returns, steps, dstar, dstar_alt, reached, used,
-                   first_entry, held, contacts):
-    """Evaluate policies ex[k, :, :lengths[k]] in ``shares`` parallel shares (untraced)."""
+                   fail_on_contact, ctl, dist, keys, shares, returns, steps, dstar, dstar_alt,
+                   reached, used, first_entry, held, contacts):
+    """Evaluate policies ex[k, :, :lengths[k]] in ``shares`` parallel shares (untraced;
+    ``dist``, ``keys``: the disturbances, as in ``run_share``)."""
     count = ex.shape[0]
     no_state = np.zeros((1, s0.shape[0]))
     no_idx = np.zeros(1, dtype=np.int64)
@@ -157,5 +201,5 @@ def evaluate_batch(model, style, ex, ex2, act, val, lengths, s0, p, inv_range, i
         run_share(model, style, ex, ex2, act, val, lengths, first, stop, s0, p, inv_range,
                   is_angle, best, inv_scale, fixed, delta, n_step, actions, radius2, goal_u,
                   alt_inv_scale, alt_fixed, ends_in_goal, hold_bonus, contact_below,
-                  fail_on_contact, ctl, returns, steps, dstar, dstar_alt, reached, used,
-                  first_entry, held, contacts, no_state, no_idx, no_val, no_val)
+                  fail_on_contact, ctl, dist, keys, returns, steps, dstar, dstar_alt, reached,
+                  used, first_entry, held, contacts, no_state, no_idx, no_val, no_val)

@@ -3,6 +3,10 @@
 ``Evaluator`` packs exemplar policies into padded arrays and runs them in one parallel
 batch; ``Evaluator.episode`` runs one policy with its trajectory recorded.  Fitness is the
 episode's accumulated reward; the evaluation is deterministic.
+
+With a disturbance profile (``sim_nodes.disturbance``) each episode is disturbed by draws
+keyed by its row of ``keys`` (seed, generation, policy, episode); robust fitness (each
+policy on K disturbed episodes) is ``sapga_ros.evaluation.robust.RobustEvaluator``.
 """
 from __future__ import annotations
 
@@ -18,6 +22,7 @@ from sapga_ros.exemplars.distance import normalize_states
 from sapga_ros.policies.episode import Episode
 from sapga_ros.policies.exemplar import ExemplarPolicy
 from sapga_ros.policies.styles import STYLES
+from sim_nodes.disturbance import Disturbance
 from sim_nodes.models import model_id
 from sim_nodes.goal import alt_goal_arrays, goal_arrays, hold_measures
 from sim_nodes.problem import Problem
@@ -56,7 +61,7 @@ class Evaluator:
     ``delta``."""
 
     def __init__(self, problem: Problem, delta: float | None = None,
-                 n_step: int | None = None) -> None:
+                 n_step: int | None = None, disturbance: Disturbance | None = None) -> None:
         self.problem = problem
         self.delta = problem.resolve('delta', delta)
         self.n_step = problem.resolve('n_step', n_step)
@@ -75,6 +80,8 @@ class Evaluator:
         self.catch: np.ndarray | None = None   # controller row of policies without one
         self.hold = (problem.ends_in_goal, problem.hold_bonus, problem.contact_below,
                      problem.end_stop == 'fail')
+        self.disturbance = disturbance or Disturbance()
+        self.dist = self.disturbance.pack(problem)
 
     def _consts(self):
         return (self.s0, self.params, self.inv_range, self.is_angle, *self.goal, self.delta,
@@ -117,8 +124,10 @@ class Evaluator:
             val[k, :n] = p.values
         return style.number, ex, ex2, act, val, lengths
 
-    def evaluate(self, policies: list[ExemplarPolicy]) -> BatchResult:
-        """Evaluate every policy once (in parallel on the configured threads)."""
+    def evaluate(self, policies: list[ExemplarPolicy],
+                 keys: np.ndarray | None = None) -> BatchResult:
+        """Evaluate every policy once (in parallel on the configured threads), disturbed by
+        the draws of ``keys`` (P, 4) (None: all zero)."""
         count = len(policies)
         style, ex, ex2, act, val, lengths = self.pack(policies)
         returns = np.empty(count)
@@ -131,14 +140,16 @@ class Evaluator:
         if count:
             shares = max(1, min(count, numba.get_num_threads() * BLOCKS_PER_THREAD))
             evaluate_batch(self.model, style, ex, ex2, act, val, lengths, *self._consts(),
-                           self.controls(policies), shares, returns, steps, dstar, dstar_alt,
-                           reached, used, first, held, contacts)
+                           self.controls(policies), self.dist, _keys(keys, count), shares,
+                           returns, steps, dstar, dstar_alt, reached, used, first, held,
+                           contacts)
         return BatchResult(returns, steps, dstar, reached,
                            [used[k, :n].copy() for k, n in enumerate(lengths)],
                            dstar_alt if len(self.alt_goal[0]) else None, first, held, contacts)
 
-    def episode(self, policy: ExemplarPolicy) -> Episode:
-        """Run ``policy`` once from the initial state and record the trajectory."""
+    def episode(self, policy: ExemplarPolicy, key: tuple = (0, 0, 0, 0)) -> Episode:
+        """Run ``policy`` once from the initial state and record the trajectory (disturbed by
+        the draws of ``key``: seed, generation, policy, episode)."""
         style, ex, ex2, act, val, lengths = self.pack([policy])
         returns, dstar, dstar_alt = np.zeros(1), np.zeros(1), np.zeros(1)
         steps = np.zeros(1, dtype=np.int64)
@@ -150,8 +161,9 @@ class Evaluator:
         tr_act = np.zeros(self.n_step)
         tr_reward = np.zeros(self.n_step)
         run_share(self.model, style, ex, ex2, act, val, lengths, 0, 1, *self._consts(),
-                  self.controls([policy]), returns, steps, dstar, dstar_alt, reached, used,
-                  first, held, contacts, tr_state, tr_idx, tr_act, tr_reward)
+                  self.controls([policy]), self.dist, _keys([key], 1), returns, steps, dstar,
+                  dstar_alt, reached, used, first, held, contacts, tr_state, tr_idx, tr_act,
+                  tr_reward)
         n = int(steps[0])
         return Episode(tr_state[:n + 1].copy(), tr_act[:n].copy(), tr_idx[:n].copy(),
                        tr_reward[:n].copy(), float(returns[0]), n, float(dstar[0]),
@@ -165,3 +177,13 @@ def run_policy_episode(policy: Any, delta: float, max_steps: int | None = None) 
     if isinstance(policy, ExemplarPolicy):
         return Evaluator(policy.problem, delta, max_steps).episode(policy)
     return policy.episode(delta, max_steps)
+
+
+def _keys(keys, count: int) -> np.ndarray:
+    """(count, 4) int64 draw keys (None: zeros)."""
+    if keys is None:
+        return np.zeros((count, 4), dtype=np.int64)
+    out = np.ascontiguousarray(keys, dtype=np.int64)
+    if out.shape != (count, 4) or (out < 0).any():
+        raise SapgaError(f'draw keys: expected ({count}, 4) integers >= 0')
+    return out

@@ -44,6 +44,9 @@ class Experiment:
     variant: str = 'paper'                 # SAP-GA variant (optim/sapga.py VARIANTS)
     seeds: int | None = None               # this row's seed count (None: the set's)
     catch: str = 'none'                    # lqr: the hybrid (sapga train --catch lqr)
+    disturbance: str = 'none'              # robust fitness (sapga train --disturbance)
+    episodes: int = 1                      # disturbed episodes per evaluation
+    robust_stat: str = 'mean'              # value over the episodes: mean or qNN
 
 
 def _count(value: Any, where: str, low: int, high: int) -> int:
@@ -56,7 +59,7 @@ def _count(value: Any, where: str, low: int, high: int) -> int:
 
 _SET_KEYS = ('name', 'seeds', 'experiments', 'limits')
 _EXPERIMENT_KEYS = ('id', 'problem', 'delta', 'method', 'steps', 'style', 'paper', 'group',
-                    'variant', 'seeds', 'catch')
+                    'variant', 'seeds', 'catch', 'disturbance', 'episodes', 'robust_stat')
 _LIMIT_KEYS = ('problem', 'alternative_goal', 'width', 'cells', 'per_cell')
 
 
@@ -83,6 +86,20 @@ def _problem(name: str, where: str) -> Problem:
         raise ConfigError(f'{where}.problem: {exc}') from None
 
 
+def _robust(exp: Experiment, where: str) -> None:
+    """Refuse a row's robust-fitness settings that cannot run, naming the row."""
+    from sapga_ros.evaluation.robust import check_stat
+    from sim_nodes.disturbance import load_disturbance
+    try:
+        load_disturbance(exp.disturbance)
+        check_stat(exp.robust_stat)
+    except ConfigError as exc:
+        raise ConfigError(f'{where}: {exc}') from None
+    robust = exp.disturbance != 'none' or exp.episodes > 1
+    if robust and exp.method not in ('sapga', 'cmaes'):
+        raise ConfigError(f'{where}: disturbance and episodes: SAP-GA and CMA-ES rows only')
+
+
 def _experiment(e: Any, where: str) -> Experiment:
     if not isinstance(e, dict):
         raise ConfigError(f'{where}: expected a mapping')
@@ -102,13 +119,17 @@ def _experiment(e: Any, where: str) -> Experiment:
                      _text(e, 'variant', where, 'paper', 40),
                      None if e.get('seeds') is None else
                      _count(e['seeds'], f'{where}.seeds', 1, MAX_SEEDS),
-                     _text(e, 'catch', where, 'none', 40))
+                     _text(e, 'catch', where, 'none', 40),
+                     _text(e, 'disturbance', where, 'none', 200),
+                     _count(e.get('episodes', 1), f'{where}.episodes', 1, 10_000),
+                     _text(e, 'robust_stat', where, 'mean', 40))
     if not _WORD_RE.fullmatch(exp.group):
         raise ConfigError(f'{where}.group: expected a word (letters, digits, _ and -), '
                           f'got {exp.group!r}')
     if exp.catch not in CATCHES or (exp.catch != 'none' and exp.method != 'sapga'):
         raise ConfigError(f'{where}.catch: expected one of {", ".join(CATCHES)} (lqr: SAP-GA '
                           f'rows only), got {exp.catch!r}')
+    _robust(exp, where)
     from sapga_ros.optim.sapga import VARIANTS
     if exp.variant not in VARIANTS:
         raise ConfigError(f'{where}.variant: unknown variant {exp.variant!r} '
@@ -217,7 +238,9 @@ def run_seeds(exp: Experiment, seeds: list[int], steps: int) -> list[dict]:
         configs = [TrainConfig(problem=exp.problem, method=exp.method, delta=exp.delta,
                                steps=steps, seed=seed, jobs=1,
                                params=SapgaParams(style=exp.style, variant=exp.variant),
-                               cmaes=CmaesParams(popsize=CMAES_POP), catch=exp.catch)
+                               cmaes=CmaesParams(popsize=CMAES_POP), catch=exp.catch,
+                               disturbance=exp.disturbance, episodes=exp.episodes,
+                               robust_stat=exp.robust_stat)
                    for seed in seeds]
         if exp.method == 'ql' and len(configs) > 1:
             results = train_lanes(configs)

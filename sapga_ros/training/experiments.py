@@ -35,11 +35,14 @@ def run_path(out: Path, exp: Experiment, seed: int) -> Path:
     return _run_path(out, exp.id, seed)
 
 
+UNSET = (('catch', 'none'), ('disturbance', 'none'), ('episodes', 1), ('robust_stat', 'mean'))
+
+
 def run_key(name: str, exp: Experiment, seed: int, budget: int) -> dict:
     """What a run's result depends on (not the row's description): a stored run is reused
     only for the same key."""
     settings = {k: v for k, v in asdict(exp).items()
-                if k not in ('paper', 'group', 'seeds') and (k, v) != ('catch', 'none')}
+                if k not in ('paper', 'group', 'seeds') and (k, v) not in UNSET}
     return {'set': name, 'experiment': settings, 'seed': seed, 'steps': budget}
 
 

@@ -11,7 +11,9 @@ with its provenance in ``meta``.
 A save writes the checkpoint (``training/checkpoints.py``) and hands the best policy so far
 and the log to ``on_save``, which writes them where the caller keeps them: a killed run
 loses at most one period.  Same seed, same result, with or without checkpoint/resume.
-The CLI, the trainer node and the experiments all train through it.
+The CLI, the trainer node and the experiments all train through it.  With ``disturbance``
+or ``episodes`` set, every evaluation is robust (``sapga_ros.evaluation.robust``).
+(Longer than 300 lines: one run's settings, its round loop and its result belong together.)
 """
 from __future__ import annotations
 
@@ -29,6 +31,7 @@ import numpy as np
 from sapga_ros import __version__
 from sapga_ros.errors import CheckpointError, ConfigError
 from sapga_ros.evaluation.evaluator import Evaluator, set_jobs
+from sapga_ros.evaluation.robust import check_stat, robust_evaluator
 from sapga_ros.policies.exemplar import ExemplarPolicy
 from sapga_ros.io.atomic import write_atomic
 from sapga_ros.optim.base import Optimizer
@@ -65,12 +68,25 @@ class TrainConfig:
     catch: str = param('none', 'lqr: every policy hands over to the problem\'s LQR inside '
                        'its catch region x\'Px <= c (the hybrid; SAP-GA only); none: not',
                        choices=('none', 'lqr'))
+    disturbance: str = param('none', 'disturbance profile of every evaluation (robust '
+                             'fitness): a name in msg_configs/disturbances or a .yaml file; '
+                             'none: the undisturbed model')
+    episodes: int = param(1, 'disturbed episodes per policy evaluation (the same draws for '
+                          'every policy of the run)', low=1, high=10_000)
+    robust_stat: str = param('mean', 'value of a policy over its episodes: mean, or qNN, the '
+                             'NN-th percentile of the returns (a lower quantile, e.g. q10)')
     params: SapgaParams = field(default_factory=SapgaParams)
     ql: QlParams = field(default_factory=QlParams)
     cmaes: CmaesParams = field(default_factory=CmaesParams)
 
     def __post_init__(self) -> None:
         check(self)
+        check_stat(self.robust_stat)
+
+    @property
+    def disturbed(self) -> bool:
+        """Evaluations are disturbed (``disturbance`` not none, or several episodes)."""
+        return self.disturbance != 'none' or self.episodes > 1
 
 
 @dataclass
@@ -95,8 +111,11 @@ def json_roundtrip(obj: Any) -> Any:
 def run_settings(config: TrainConfig, problem: Problem, delta: float) -> dict:
     """What a checkpoint must share with the run that resumes it."""
     cls = METHODS[config.method]
+    robust = {'disturbance': config.disturbance, 'episodes': config.episodes,
+              'robust_stat': config.robust_stat} if config.disturbed else {}
     return json_roundtrip({'problem': problem.name, 'method': config.method, 'delta': delta,
-                           'seed': config.seed, **cls.settings(problem, method_params(config))})
+                           'seed': config.seed, **cls.settings(problem, method_params(config)),
+                           **robust})
 
 
 def method_params(config: TrainConfig) -> SapgaParams | QlParams | CmaesParams:
@@ -202,7 +221,7 @@ def _rounds(config: TrainConfig, initial: list[ExemplarPolicy] = (),
     problem = load_problem(config.problem)
     delta = problem.resolve('delta', config.delta)
     jobs = set_jobs(config.jobs)
-    evaluator = Evaluator(problem, delta)
+    evaluator = make_evaluator(config, problem, delta)
     catch = None
     if config.catch == 'lqr':
         if config.method != 'sapga':
@@ -258,6 +277,15 @@ def _rounds(config: TrainConfig, initial: list[ExemplarPolicy] = (),
                        reasons)
 
 
+def make_evaluator(config: TrainConfig, problem: Problem, delta: float) -> Evaluator:
+    """The run's evaluator: with robust fitness, every policy on ``episodes`` episodes of the
+    ``disturbance`` profile (``sapga_ros.evaluation.robust``)."""
+    if config.disturbed and config.method != 'sapga':
+        raise ConfigError('--disturbance and --episodes evaluate policies: SAP-GA only')
+    return robust_evaluator(problem, delta, config.disturbance, config.episodes,
+                            config.robust_stat, config.seed) or Evaluator(problem, delta)
+
+
 def hold_of(policy: Any, delta: float) -> dict:
     """The hold measures of ``policy``'s episode (first_entry_step, hold_fraction,
     rail_contacts)."""
@@ -291,6 +319,9 @@ def _best_policy(config: TrainConfig, opt: Optimizer, delta: float, jobs: int,
     policy.meta = {**result.meta, 'delta': delta, 'seed': config.seed, 'jobs': jobs,
                    'software': f'sapga_ros {__version__}',
                    'time': time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime())}
+    if config.disturbed:        # value and delta*: over the run's disturbed episodes
+        policy.meta.update(disturbance=config.disturbance, episodes=config.episodes,
+                           robust_stat=config.robust_stat)
     if not policy.problem.ends_in_goal:
         policy.meta.update(hold_of(policy, delta))
     return policy

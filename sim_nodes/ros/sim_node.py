@@ -49,6 +49,8 @@ from std_msgs.msg import Float64, Float64MultiArray, String
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
+from sim_nodes.disturbance import Plant, load_disturbance
+from sim_nodes.draws import HELD_OUT
 from sim_nodes.goal import goal_arrays, goal_delta, hold_measures
 from sim_nodes.models import MODELS, model_module
 from sim_nodes.models.registry import GENERIC_SIM, sim_executable
@@ -85,7 +87,6 @@ class SimNode(Node):
         name = declare(self, sim_parameters(default_problem)[:1])['problem']
         self.problem = problem = load_problem(name)
         self._mdp_step = model_module(problem.model).mdp_step
-        self._p = problem.params()
         self._best, self._inv_scale, self._fixed = goal_arrays(problem)
         self._is_angle = problem.is_angle
         self._s0 = problem.initial_state
@@ -93,14 +94,16 @@ class SimNode(Node):
         self._layout = JointStateLayout(problem)
         self._stamped = StampedCommand(problem)
         engine = declare(self, engine_parameters())
-        self._plant = MujocoEngine(problem) if engine['engine'] == 'mujoco' else None
-        if self._plant is not None:     # the MuJoCo robot: its joints, its effort commands
-            self._mdp_step = self._plant.mdp_step
-            self._layout = self._plant
-            self._stamped.joint = self._plant.actuator_joint
+        self._robot = MujocoEngine(problem) if engine['engine'] == 'mujoco' else None
+        if self._robot is not None:     # the MuJoCo robot: its joints, its effort commands
+            self._mdp_step = self._robot.mdp_step
+            self._layout = self._robot
+            self._stamped.joint = self._robot.actuator_joint
         self._markers = PendulumMarkers(problem)
         self.qos_profile = declare_settings(self, problem)
         self.settings = read_settings(self)
+        self._plant = Plant(problem, load_disturbance(self.get_parameter('disturbance').value))
+        self._draw_seed = self.get_parameter('disturbance_seed').value
         self.commands = CommandCheck(float(np.max(np.abs(problem.action_values))),
                                      self.get_logger())
 
@@ -117,7 +120,7 @@ class SimNode(Node):
         self._stamped_sub = self.create_subscription(JointState, topics['command_stamped'],
                                                      self._on_stamped_command, qos)
         subs = [self._command_sub, self._stamped_sub]
-        if self._plant is not None:
+        if self._robot is not None:
             self._effort_sub = self.create_subscription(
                 Float64MultiArray, engine['effort_topic'], self._on_effort, qos)
             subs.append(self._effort_sub)
@@ -130,6 +133,7 @@ class SimNode(Node):
 
         # episode state
         self._s = self._s0.copy()
+        self._seen = self._s0.copy()   # what the policy is told: the state + sensor noise
         self._state_msg = self._layout.new_msg()
         self._reward_msg = Float64()
         self._clock_msg = Clock()
@@ -216,13 +220,13 @@ class SimNode(Node):
     def _on_command(self, msg: Float64, info: dict) -> None:
         """Hand-use command (no stamp): lockstep takes it as the current state's answer."""
         self.dropped[self._command_sub.topic_name].seen(info)
-        self._take_unstamped(self._plant.action([msg.data]) if self._plant else msg.data)
+        self._take_unstamped(self._robot.action([msg.data]) if self._robot else msg.data)
 
     def _on_effort(self, msg: Float64MultiArray, info: dict) -> None:
         """engine mujoco: the robot's effort command (no stamp, as ``command``)."""
         self.dropped[self._effort_sub.topic_name].seen(info)
         try:
-            value = self._plant.action(msg.data)
+            value = self._robot.action(msg.data)
         except MessageError as exc:
             self.commands.reject(str(exc))
             return
@@ -243,7 +247,7 @@ class SimNode(Node):
         self.dropped[self._stamped_sub.topic_name].seen(info)
         try:
             answered, value = self._stamped.read(msg)
-            value = self._plant.action([value]) if self._plant else value
+            value = self._robot.action([value]) if self._robot else value
         except MessageError as exc:
             self.commands.reject(f'stamped command: {exc}')
             return
@@ -291,7 +295,7 @@ class SimNode(Node):
         """Run the step, the goal test and the drawing once on scratch data, so that their
         compilation (or cache load) happens now, not in the first ticks of a run."""
         s = self._s0.copy()
-        self._mdp_step(s, 0.0, self._p)
+        self._mdp_step(s, 0.0, self._plant.params)
         goal_delta(s, self._best, self._inv_scale, self._fixed, self._is_angle)
         self._markers.state(s, 0, self.settings.delta)
         self._layout.fill(self._layout.new_msg(), s, 0.0, 0)
@@ -342,7 +346,11 @@ class SimNode(Node):
 
     def _step_once(self, action: float) -> None:
         """Evaluator's episode loop body: step, count the reward, then test the goal."""
-        reward = self._mdp_step(self._s, action, self._p)
+        action = self._plant.command(action)    # late, gain error (none: as given)
+        self._plant.push(self._s)
+        reward = self._mdp_step(self._s, action, self._plant.params)
+        self._plant.advance()
+        self._seen = self._plant.observe(self._s)
         self._step += 1
         self.total_steps += 1
         self._return += reward
@@ -370,9 +378,11 @@ class SimNode(Node):
             self._end_episode('step_limit', d)
 
     def _start_episode(self) -> None:
-        self._s[:] = self._s0
-        if self._plant is not None:
-            self._plant.reset(self._s0)
+        self._plant.n_step = self.settings.n_step
+        self._s[:] = self._plant.reset((self._draw_seed, 0, HELD_OUT, self._episode))
+        self._seen = self._plant.observe(self._s)
+        if self._robot is not None:     # the MuJoCo robot starts where the plant does
+            self._robot.reset(self._s)
         self._episode += 1
         self._step = 0
         self._return = 0.0
@@ -402,7 +412,7 @@ class SimNode(Node):
         """Publish the state (its markers and /clock) at the current tick."""
         ns = self._tick * self._tick_ns
         self._answered = False
-        self._layout.fill(self._state_msg, self._s, self._effort, ns)
+        self._layout.fill(self._state_msg, self._seen, self._effort, ns)
         self._state_pub.publish(self._state_msg)
         s = self.settings
         self._marker_msg = self._markers.state(self._s, ns, s.delta) if s.markers else None

@@ -14,7 +14,9 @@ step per tick of wall time / ``real_time_factor``, zero-order hold on the latest
 (false for all but one of several simulators in one domain), ``markers``, ``qos_profile``
 (read-only; ``sensor_data``: best effort, depth 5, for realtime runs), ``wait_for_policy``
 and ``policy_timeout`` (realtime: the first tick waits for a command answering the first
-state, which is re-published meanwhile; exit 1 after the timeout), and the recorder gate's
+state, which is re-published meanwhile; exit 1 after the timeout), ``disturbance`` and
+``disturbance_seed`` (read-only; the plant is disturbed as the episode engine disturbs it,
+``sim_nodes.disturbance.Plant``), and the recorder gate's
 ``wait_for_recorder`` and ``recorder_timeout`` (``recorder_gate.py``), ``engine``
 (read-only; ``kernel`` or ``mujoco``) and ``effort_topic`` (``mujoco_engine.py``).
 """
@@ -75,6 +77,11 @@ def sim_parameters(default_problem: str) -> list[Param]:
               'state (re-published meanwhile); false: step at once', read_only=True),
         Param('policy_timeout', 60.0, 'how long realtime waits for that answer (longer: the '
               'node stops, exit 1)', 1e-3, 86400.0, read_only=True, unit='s'),
+        Param('disturbance', 'none', 'disturbance profile of the plant (a name in '
+              'msg_configs/disturbances or a .yaml file): noise on the published state, '
+              'latency, gain, model error, pushes; none: the model', read_only=True),
+        Param('disturbance_seed', 0, 'seed of the disturbances: episode k is drawn as the '
+              'evaluation\'s episode k - 1 of this seed', 0, MAX_COUNT, read_only=True),
         *gate_parameters(), *engine_parameters()]
 
 
