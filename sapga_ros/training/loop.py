@@ -280,8 +280,9 @@ def _rounds(config: TrainConfig, initial: list[ExemplarPolicy] = (),
 def make_evaluator(config: TrainConfig, problem: Problem, delta: float) -> Evaluator:
     """The run's evaluator: with robust fitness, every policy on ``episodes`` episodes of the
     ``disturbance`` profile (``sapga_ros.evaluation.robust``)."""
-    if config.disturbed and config.method != 'sapga':
-        raise ConfigError('--disturbance and --episodes evaluate policies: SAP-GA only')
+    if config.disturbed and config.method == 'ql':
+        raise ConfigError('--disturbance and --episodes evaluate policies: SAP-GA and CMA-ES '
+                          'only')
     return robust_evaluator(problem, delta, config.disturbance, config.episodes,
                             config.robust_stat, config.seed) or Evaluator(problem, delta)
 
