@@ -55,6 +55,7 @@ from sim_nodes.ros.common import (CLOCK_QOS, EVENT_QOS, QUIET_PUBLISHER, JointSt
                                   MessageError, run_node, steady_clock, topic_names, topic_qos)
 from sim_nodes.ros.diagnostics import OK, WARN, NodeDiagnostics, Report
 from sim_nodes.ros.dropped import DropCounter
+from sim_nodes.ros.marker_bytes import MarkerBytes
 from sim_nodes.ros.markers import PendulumMarkers
 from sim_nodes.ros.params import declare
 from sim_nodes.ros.recorder_gate import RecorderGate
@@ -87,6 +88,7 @@ class SimNode(Node):
         self._layout = JointStateLayout(problem)
         self._stamped = StampedCommand(problem)
         self._markers = PendulumMarkers(problem)
+        self._marker_bytes = MarkerBytes()   # serialized by patching (marker_bytes.py)
         self.qos_profile = declare_settings(self, problem)
         self.settings = read_settings(self)
         self.commands = CommandCheck(float(np.max(np.abs(problem.action_values))),
@@ -374,7 +376,7 @@ class SimNode(Node):
         s = self.settings
         self._marker_msg = self._markers.state(self._s, ns, s.delta) if s.markers else None
         if self._marker_msg is not None:
-            self._marker_pub.publish(self._marker_msg)
+            self._marker_pub.publish(self._marker_bytes.bytes_of(self._marker_msg))
         if self._clock_pub is not None:
             self._clock_msg.clock = self._state_msg.header.stamp
             self._clock_pub.publish(self._clock_msg)
