@@ -23,18 +23,15 @@ import argparse
 import json
 import os
 import random
-import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-from sapga_ros.bench.ros_floor import ping_pong, realtime_latency
+from sapga_ros.bench.ros_floor import ping_pong, realtime_latency, start_pair, stop_pair
 from sapga_ros.evaluation.evaluator import Evaluator
 from sapga_ros.policies.exemplar import ExemplarPolicy
-from sim_nodes.models.registry import sim_executable
 from sim_nodes.problem import Problem, load_problem
 
 N_EXEMPLARS = 100  # L_max of SAP-GA: the largest policy the trainer produces
@@ -157,8 +154,6 @@ def bench_lockstep_processes(problem: Problem, policy: ExemplarPolicy,
     domain = _domain()
     _env(domain)
     env = dict(os.environ, PYTHONUNBUFFERED='1')
-    bin_dir = Path(sys.prefix) / 'bin'
-    sim_exe = sim_executable(problem.model)
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / 'policy.json'
         policy.save(path)
@@ -170,13 +165,8 @@ def bench_lockstep_processes(problem: Problem, policy: ExemplarPolicy,
             (time.perf_counter(), json.loads(m.data))), EVENT_QOS)
         ex = SingleThreadedExecutor(context=context)
         ex.add_node(node)
-        procs = [subprocess.Popen([str(bin_dir / 'policy_node'), '--ros-args', '-p',
-                                   f'problem:={problem.name}', '-p', f'policy_file:={path}'],
-                                  env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL),
-                 subprocess.Popen([str(bin_dir / sim_exe), '--ros-args', '-p',
-                                   f'problem:={problem.name}', '-p', 'mode:=lockstep',
-                                   '-p', f'max_episodes:={episodes + 1}'],
-                                  env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
+        procs = start_pair(problem, path, env, ['-p', 'mode:=lockstep', '-p',
+                                                f'max_episodes:={episodes + 1}'])
         try:
             deadline = time.monotonic() + 120.0
             while time.monotonic() < deadline and not any(
@@ -184,12 +174,7 @@ def bench_lockstep_processes(problem: Problem, policy: ExemplarPolicy,
                     for _, e in events):
                 ex.spin_once(timeout_sec=0.1)
         finally:
-            for proc in procs:
-                proc.send_signal(2)
-                proc.wait(15)
-            ex.shutdown()
-            node.destroy_node()
-            context.try_shutdown()
+            stop_pair(procs, ex, node, context)
     # from the start of episode 2 (the loop is warm) to the end of the last one
     t0 = next(t for t, e in events if e['event'] == 'start' and e['episode'] == 2)
     ends = [(t, e) for t, e in events if e['event'] in ('goal', 'step_limit')

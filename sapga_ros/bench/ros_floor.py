@@ -29,6 +29,29 @@ from sim_nodes.models.registry import sim_executable
 from sim_nodes.problem import Problem
 
 
+def start_pair(problem: Problem, policy_file: Path, env: dict, sim_args: list[str]
+               ) -> list[subprocess.Popen]:
+    """The policy node (``policy_file``) and the problem's simulator (``sim_args`` after
+    its ``problem``) as child processes of this one, output discarded."""
+    bin_dir = Path(sys.prefix) / 'bin'
+    quiet = {'env': env, 'stdout': subprocess.DEVNULL, 'stderr': subprocess.DEVNULL}
+    return [subprocess.Popen([str(bin_dir / 'policy_node'), '--ros-args', '-p',
+                              f'problem:={problem.name}', '-p', f'policy_file:={policy_file}'],
+                             **quiet),
+            subprocess.Popen([str(bin_dir / sim_executable(problem.model)), '--ros-args',
+                              '-p', f'problem:={problem.name}', *sim_args], **quiet)]
+
+
+def stop_pair(procs: list[subprocess.Popen], executor, node, context) -> None:
+    """Ctrl-C to the child processes, then the probe ``node`` and its ROS context down."""
+    for proc in procs:
+        proc.send_signal(2)
+        proc.wait(15)
+    executor.shutdown()
+    node.destroy_node()
+    context.try_shutdown()
+
+
 def _executor(kind: str, context):
     from rclpy.executors import SingleThreadedExecutor
     if kind == 'events':
@@ -99,7 +122,6 @@ def realtime_latency(problem: Problem, policy: ExemplarPolicy, domain: int,
     qos = qos_profile(problem)
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), PYTHONUNBUFFERED='1')
     env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-    bin_dir = Path(sys.prefix) / 'bin'
     states: dict[int, float] = {}
     commands: dict[int, float] = {}
     with tempfile.TemporaryDirectory() as tmp:
@@ -115,13 +137,8 @@ def realtime_latency(problem: Problem, policy: ExemplarPolicy, domain: int,
                                                                time.perf_counter()), qos)
         ex = _executor('single', context)
         ex.add_node(node)
-        procs = [subprocess.Popen([str(bin_dir / 'policy_node'), '--ros-args', '-p',
-                                   f'problem:={problem.name}', '-p', f'policy_file:={path}'],
-                                  env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL),
-                 subprocess.Popen([str(bin_dir / sim_executable(problem.model)), '--ros-args',
-                                   '-p', f'problem:={problem.name}', '-p', 'mode:=realtime',
-                                   '-p', f'real_time_factor:={float(real_time_factor)}'],
-                                  env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
+        procs = start_pair(problem, path, env, ['-p', 'mode:=realtime', '-p',
+                                                f'real_time_factor:={float(real_time_factor)}'])
         try:
             deadline = time.monotonic() + 120.0
             while not commands and time.monotonic() < deadline:   # start-up and discovery
@@ -131,12 +148,7 @@ def realtime_latency(problem: Problem, policy: ExemplarPolicy, domain: int,
             while time.monotonic() < end:
                 ex.spin_once(timeout_sec=0.1)
         finally:
-            for proc in procs:
-                proc.send_signal(2)
-                proc.wait(15)
-            ex.shutdown()
-            node.destroy_node()
-            context.try_shutdown()
+            stop_pair(procs, ex, node, context)
     stamps = sorted(commands)[first:]
     ms = np.array([(commands[s] - states[s]) * 1e3 for s in stamps if s in states])
     if ms.size == 0:
