@@ -21,6 +21,7 @@ from rclpy.serialization import serialize_message
 
 _SEC0 = 0x5A5A0000        # stamp sentinels: seconds, nanoseconds (+ the marker's number)
 _NSEC0 = 0x3C3C0000
+MAX_SHAPES = 16            # templates kept (a drawing has two or three shapes)
 _REAL0 = 1.0e300          # pose and point sentinels: _REAL0 * (1 + k * 2**-40)
 
 
@@ -44,6 +45,8 @@ class MarkerBytes:
         markers = array.markers
         shape = tuple((m.action, len(m.points)) for m in markers)
         if shape not in self._templates:
+            if len(self._templates) >= MAX_SHAPES:
+                self._templates.clear()
             self._templates[shape] = self._template(array)
         template = self._templates[shape]
         if template is None:
