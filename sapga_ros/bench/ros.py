@@ -3,12 +3,17 @@ through DDS and what one selection costs in the policy node, each printed beside
 measured in the same process (the compiled offline episode kernel).
 
     python -m sapga_ros.bench.ros [--problem acrobot] [--steps 4000] [--processes]
+                                  [--realtime]
 
 * lockstep loop: ``SimNode`` (lockstep) and ``PolicyNode`` exchange state and command over
   Fast DDS, both nodes on one executor thread of this process (``--processes``: the two
   executables as child processes, timed from the episode events);
 * selection: ``PolicyNode.select`` (JointState -> state, normalise, nearest) per call, and
-  the whole state callback including the two publishes.
+  the whole state callback including the two publishes;
+* floors (``ros_floor.py``): a bare JointState ping-pong between two nodes on the
+  ``SingleThreadedExecutor`` the nodes run on, and on rclpy's ``EventsExecutor``, with the
+  lockstep loop's share of each; ``--realtime``: the state->command latency of the realtime
+  sim and policy node, matched by header stamp.
 
 rclpy is imported inside the functions: importing this module costs nothing.
 """
@@ -18,17 +23,15 @@ import argparse
 import json
 import os
 import random
-import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
+from sapga_ros.bench.ros_floor import ping_pong, realtime_latency, start_pair, stop_pair
 from sapga_ros.evaluation.evaluator import Evaluator
 from sapga_ros.policies.exemplar import ExemplarPolicy
-from sim_nodes.models.registry import sim_executable
 from sim_nodes.problem import Problem, load_problem
 
 N_EXEMPLARS = 100  # L_max of SAP-GA: the largest policy the trainer produces
@@ -100,8 +103,7 @@ def bench_selection(problem: Problem, policy: ExemplarPolicy, repeats: int = 200
     return {'select_us': select_us, 'callback_us': callback_us}
 
 
-def bench_lockstep(problem: Problem, policy: ExemplarPolicy, steps: int = 4000,
-                   executor: str = 'single') -> dict:
+def bench_lockstep(problem: Problem, policy: ExemplarPolicy, steps: int = 4000) -> dict:
     """MDP steps/s of a lockstep sim <-> policy loop over DDS, one executor thread."""
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
@@ -115,11 +117,7 @@ def bench_lockstep(problem: Problem, policy: ExemplarPolicy, steps: int = 4000,
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=domain)
     try:
-        if executor == 'events':
-            from rclpy.experimental import EventsExecutor
-            ex = EventsExecutor(context=context)
-        else:
-            ex = SingleThreadedExecutor(context=context)
+        ex = SingleThreadedExecutor(context=context)  # the executor the nodes run on
         sim = SimNode(default_problem=problem.name, context=context, parameter_overrides=[
             Parameter('mode', value='lockstep'), Parameter('republish_period', value=0.05)])
         pol = PolicyNode(context=context, parameter_overrides=[
@@ -156,8 +154,6 @@ def bench_lockstep_processes(problem: Problem, policy: ExemplarPolicy,
     domain = _domain()
     _env(domain)
     env = dict(os.environ, PYTHONUNBUFFERED='1')
-    bin_dir = Path(sys.prefix) / 'bin'
-    sim_exe = sim_executable(problem.model)
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / 'policy.json'
         policy.save(path)
@@ -169,13 +165,8 @@ def bench_lockstep_processes(problem: Problem, policy: ExemplarPolicy,
             (time.perf_counter(), json.loads(m.data))), EVENT_QOS)
         ex = SingleThreadedExecutor(context=context)
         ex.add_node(node)
-        procs = [subprocess.Popen([str(bin_dir / 'policy_node'), '--ros-args', '-p',
-                                   f'problem:={problem.name}', '-p', f'policy_file:={path}'],
-                                  env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL),
-                 subprocess.Popen([str(bin_dir / sim_exe), '--ros-args', '-p',
-                                   f'problem:={problem.name}', '-p', 'mode:=lockstep',
-                                   '-p', f'max_episodes:={episodes + 1}'],
-                                  env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
+        procs = start_pair(problem, path, env, ['-p', 'mode:=lockstep', '-p',
+                                                f'max_episodes:={episodes + 1}'])
         try:
             deadline = time.monotonic() + 120.0
             while time.monotonic() < deadline and not any(
@@ -183,12 +174,7 @@ def bench_lockstep_processes(problem: Problem, policy: ExemplarPolicy,
                     for _, e in events):
                 ex.spin_once(timeout_sec=0.1)
         finally:
-            for proc in procs:
-                proc.send_signal(2)
-                proc.wait(15)
-            ex.shutdown()
-            node.destroy_node()
-            context.try_shutdown()
+            stop_pair(procs, ex, node, context)
     # from the start of episode 2 (the loop is warm) to the end of the last one
     t0 = next(t for t, e in events if e['event'] == 'start' and e['episode'] == 2)
     ends = [(t, e) for t, e in events if e['event'] in ('goal', 'step_limit')
@@ -204,8 +190,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--steps', type=int, default=4000, help='MDP steps to time in process')
     parser.add_argument('--processes', action='store_true',
                         help='also time the two executables as child processes')
-    parser.add_argument('--events', action='store_true',
-                        help="also time rclpy's experimental EventsExecutor")
+    parser.add_argument('--realtime', action='store_true',
+                        help='also the realtime state->command latency (two processes)')
     args = parser.parse_args(argv)
     problem = load_problem(args.problem)
     policy = bench_policy(problem)
@@ -218,15 +204,23 @@ def main(argv: list[str] | None = None) -> int:
     print(f'policy node callback: {sel["callback_us"]:8.1f} us/step  '
           f'({sel["callback_us"] / base_us:6.1f} x kernel step, incl. 2 publishes)')
     runs = [('lockstep, 1 thread', bench_lockstep(problem, policy, args.steps))]
-    if args.events:
-        runs.append(('lockstep, EventsExecutor',
-                     bench_lockstep(problem, policy, args.steps, 'events')))
     if args.processes:
         runs.append(('lockstep, 2 processes', bench_lockstep_processes(problem, policy)))
     for label, r in runs:
         print(f'{label + ":":27s} {r["steps_per_s"]:8,.0f} steps/s  ({r["steps"]} steps in '
               f'{r["seconds"]:.2f} s; kernel is {1e6 / base_us / r["steps_per_s"]:,.0f} x '
               f'faster)')
+    lockstep = runs[0][1]['steps_per_s']
+    for kind, label in (('single', 'SingleThreadedExecutor, the nodes\''),
+                        ('events', 'EventsExecutor')):
+        r = ping_pong(problem, _domain(), kind, args.steps)
+        print(f'JointState ping-pong ({label}): {r["trips_per_s"]:8,.0f} round trips/s; '
+              f'lockstep 1 thread is {lockstep / r["trips_per_s"]:.0%} of it')
+    if args.realtime:
+        r = realtime_latency(problem, policy, _domain())
+        print(f'realtime state->command latency at {r["hz"]:.0f} Hz, {r["steps"]} steps '
+              f'(header stamps): median {r["median_ms"]:.2f} ms, p99 {r["p99_ms"]:.2f} ms, '
+              f'max {r["max_ms"]:.2f} ms')
     return 0
 
 

@@ -7,7 +7,7 @@
                [--disturbance NAME [--episodes N] [--seed S]]
     sapga robustness POLICY ... --out DIR [--disturbance NAME ...] [--scales F,F,...]
     sapga exemplars POLICY [--json] [--plot OUT.png] [--prune-unused OUT.json]
-    sapga bench [--json] [--ros [--problem P]] [--style S] [--training]
+    sapga bench [--json] [--ros [--problem P] [--realtime]] [--style S] [--training]
     sapga inspect BAG [--json] [--plot OUT.png] [--episode N]
     sapga bag reindex BAG
     sapga experiment NAME --out DIR [--only 2,4] [--seeds N] [--scale F] [--workers W]
@@ -89,6 +89,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help='instead: the lockstep loop through DDS and the policy node\'s '
                         'selection time (sapga_ros.bench.ros)')
     b.add_argument('--problem', default='acrobot', help='with --ros: the problem')
+    b.add_argument('--realtime', action='store_true',
+                   help='with --ros: also the realtime state->command latency (median, p99)')
     b.add_argument('--style', choices=(*STYLES, 'all'),
                    help='batch evaluation speed of this exemplar style (or all)')
     b.add_argument('--training', action='store_true',
@@ -192,7 +194,8 @@ def cmd_exemplars(args) -> int:
 def cmd_bench(args) -> int:
     if args.ros:
         from sapga_ros.bench.ros import main as bench_ros
-        return bench_ros(['--problem', args.problem, '--processes'])
+        return bench_ros(['--problem', args.problem, '--processes',
+                          *(['--realtime'] if args.realtime else [])])
     if args.style:
         return _bench_styles(args)
     if args.training:

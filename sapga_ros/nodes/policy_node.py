@@ -61,6 +61,7 @@ from sim_nodes.ros.common import (QUIET_PUBLISHER, THROTTLE_S, JointStateLayout,
                                   run_node, stamp_ns, topic_names, topic_qos)
 from sim_nodes.ros.diagnostics import OK, WARN, NodeDiagnostics, Report
 from sim_nodes.ros.dropped import DropCounter
+from sim_nodes.ros.marker_bytes import MarkerBytes
 from sim_nodes.ros.markers import PendulumMarkers
 from sim_nodes.ros.params import declare
 
@@ -136,6 +137,7 @@ class PolicyNode(Node):
         self._command.msg.name = [self.mapping.robot_joints[self.mapping.actuated]]
         self._index_msg = Int32()
         self._ghosts = PendulumMarkers(p)
+        self._ghost_bytes = MarkerBytes()    # serialized by patching (marker_bytes.py)
 
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
@@ -190,7 +192,7 @@ class PolicyNode(Node):
         if self.markers:
             ghost = self._ghosts.exemplar(prepared.policy.states[j] if j >= 0 else None, stamp)
             if ghost is not None:
-                self._marker_pub.publish(ghost)
+                self._marker_pub.publish(self._ghost_bytes.bytes_of(ghost))
 
     def _report(self) -> Report:
         """The node's /diagnostics: the policy in use and the node's counters."""

@@ -61,6 +61,7 @@ from sim_nodes.ros.common import (CLOCK_QOS, EVENT_QOS, QUIET_PUBLISHER, JointSt
                                   MessageError, run_node, steady_clock, topic_names, topic_qos)
 from sim_nodes.ros.diagnostics import OK, WARN, NodeDiagnostics, Report
 from sim_nodes.ros.dropped import DropCounter
+from sim_nodes.ros.marker_bytes import MarkerBytes
 from sim_nodes.ros.markers import PendulumMarkers
 from sim_nodes.ros.mujoco_engine import MujocoEngine
 from sim_nodes.ros.params import declare
@@ -100,6 +101,7 @@ class SimNode(Node):
             self._layout = self._robot
             self._stamped.joint = self._robot.actuator_joint
         self._markers = PendulumMarkers(problem)
+        self._marker_bytes = MarkerBytes()   # serialized by patching (marker_bytes.py)
         self.qos_profile = declare_settings(self, problem)
         self.settings = read_settings(self)
         self._plant = Plant(problem, load_disturbance(self.get_parameter('disturbance').value))
@@ -417,7 +419,7 @@ class SimNode(Node):
         s = self.settings
         self._marker_msg = self._markers.state(self._s, ns, s.delta) if s.markers else None
         if self._marker_msg is not None:
-            self._marker_pub.publish(self._marker_msg)
+            self._marker_pub.publish(self._marker_bytes.bytes_of(self._marker_msg))
         if self._clock_pub is not None:
             self._clock_msg.clock = self._state_msg.header.stamp
             self._clock_pub.publish(self._clock_msg)
