@@ -49,7 +49,9 @@ hold, marks the bag ``incomplete`` in its ``custom_data``, and the recorder exit
 status 1.  Messages that
 never reached the recorder (its queue overflowed: ``queue_depth``, or the network lost them)
 are counted per topic from the publishers' sequence numbers, with a throttled warning and a
-total in the final line (``sim_nodes/ros/dropped.py``).
+total in the final line (``sim_nodes/ros/dropped.py``).  (Over 300 lines: the node's
+subscriptions, readiness service and the write-failure path that must stay next to them; the
+bag itself is ``sapga_ros.recording``.)
 """
 from __future__ import annotations
 

@@ -39,7 +39,9 @@ requests is answered in full: a ``stop`` waiting for its round holds no other re
 message and the log) leaves the node ready for the next.
 
 Shutdown (Ctrl-C, SIGTERM) stops a run as ``stop`` does and still writes the best policy so
-far and the checkpoint.
+far and the checkpoint.  (Over 300 lines: the node's services, parameter callbacks and run
+supervision in one place; the run itself, its status and its parameters are
+``trainer_run.py``, ``trainer_status.py`` and ``trainer_params.py``.)
 """
 from __future__ import annotations
 

@@ -1,5 +1,7 @@
 """Experiment sets: msg_configs/experiments/<name>.yaml (the paper's Table 2; the styles
-comparison), parsed and validated, and the one training run each (experiment, seed) is."""
+comparison), parsed and validated, and the one training run each (experiment, seed) is.
+(Just over 300 lines: a row's fields are read here and turned into its run here, so a new
+row setting is one place; the whole-set checks are ``experiment_checks.py``.)"""
 from __future__ import annotations
 
 import re
