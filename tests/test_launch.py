@@ -244,3 +244,39 @@ def test_swingup_runs_a_hybrid_policy_like_sapga_eval(tmp_path, capsys):
     assert cli.main(['train', '--problem', 'acrobot_hold', '--steps', '300000', '--seed', '1',
                      '--catch', 'lqr', '--quiet', '--out', str(tmp_path / 'h.json')]) == 0
     lockstep_hold_equals_eval('h.json', tmp_path, capsys)
+
+
+@pytest.mark.long
+def test_a_realtime_hold_launch_steps_every_step_in_realtime_and_holds(tmp_path, capsys):
+    """`sapga launch swingup --mode realtime` of the classical acrobot_hold policy: the bag,
+    read back with rosbags, holds all 1000 states with hold fraction >= 0.95 (computed here
+    from the states and the goal box), and no step was taken in lockstep: at 10x real time
+    the states span at least 0.6 of the episode's 5 s (a lockstep start ran ~780 of them
+    back to back, in about a second)."""
+    from rosbags.highlevel import AnyReader
+    assert cli.main(['classical', '--problem', 'acrobot_hold', '--out',
+                     str(tmp_path / 'c.json')]) == 0
+    capsys.readouterr()
+    launch(['swingup', '--policy', 'c.json', '--mode', 'realtime', '--episodes', '1',
+            '--real-time-factor', '10', '--out', 'rec'], tmp_path)
+    pr = load_problem('acrobot_hold')
+    times, inside, stamps = [], [], set()
+    with AnyReader([the_bag(tmp_path / 'rec')]) as reader:
+        wanted = [c for c in reader.connections if c.topic == '/joint_states']
+        for connection, t, raw in reader.messages(connections=wanted):
+            msg = reader.deserialize(raw, connection.msgtype)
+            stamp = (msg.header.stamp.sec, msg.header.stamp.nanosec)
+            if stamp in stamps:             # the first state, re-published until answered
+                continue
+            stamps.add(stamp)
+            s = np.array([*msg.position, *msg.velocity])
+            wrap = lambda d: abs((d + np.pi) % (2 * np.pi) - np.pi)  # noqa: E731
+            box = 2 * np.pi * pr.default_delta
+            inside.append(wrap(s[0] - np.pi / 2) <= box and wrap(s[1]) <= box
+                          and abs(s[2]) <= 8 * np.pi * pr.default_delta
+                          and abs(s[3]) <= 18 * np.pi * pr.default_delta)
+            times.append(t * 1e-9)
+    assert len(times) == 1001                       # the initial state and 1000 steps
+    first = inside.index(True)
+    assert sum(inside[first:]) / len(inside[first:]) >= 0.95
+    assert times[-1] - times[0] >= 0.6 * 1000 * pr.dt * pr.substeps / 10

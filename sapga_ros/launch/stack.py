@@ -75,11 +75,13 @@ class DeployStack:
         self.spawn('policy', 'policy_node', policy)
 
     def start_sim(self) -> None:
-        """Start the simulator: lockstep, silent, its first episode once the recorder is
-        ready (``wait_for_recorder``)."""
+        """Start the simulator, its first episode once the recorder is ready
+        (``wait_for_recorder``): lockstep, silent (``go`` makes it re-publish the waiting
+        state); realtime, its first tick once a command answered its first state
+        (``wait_for_policy``), so no step of a realtime run is taken in lockstep."""
         o = self.opts
         self.spawn('sim', sim_executable(o.problem.model), {
-            'problem': o.problem.name, 'mode': 'lockstep', 'delta': float(o.delta),
+            'problem': o.problem.name, 'mode': o.mode, 'delta': float(o.delta),
             'auto_reset': True, 'max_episodes': o.episodes, 'republish_period': 0.0,
             'real_time_factor': float(o.real_time_factor), 'wait_for_recorder': RECORDER,
             'recorder_timeout': CONNECT_TIMEOUT_S, 'engine': o.engine})
@@ -134,11 +136,12 @@ class DeployStack:
 
     def go(self) -> None:
         """Let the simulator go (once the policy node has its policy): lockstep re-publishes
-        the waiting state for the policy to answer; realtime starts stepping."""
+        the waiting state for the policy to answer; realtime is going already (it steps
+        once the policy answers its first state)."""
         self.ros.node.last_new_state = time.monotonic()
-        change = ({'mode': 'realtime'} if self.opts.mode == 'realtime'
-                  else {'republish_period': REPUBLISH_S})
-        self.ros.set_parameters(self.sup, sim_executable(self.opts.problem.model), change)
+        if self.opts.mode == 'lockstep':
+            self.ros.set_parameters(self.sup, sim_executable(self.opts.problem.model),
+                                    {'republish_period': REPUBLISH_S})
 
     def run_episodes(self) -> list[dict]:
         """Wait for the N episode end events (lockstep: fail if the episode stalls)."""
