@@ -33,7 +33,7 @@ import numpy as np
 
 from sapga_ros.errors import CheckpointError, ConfigError
 from sapga_ros.optim.base import Optimizer, Result, State
-from sapga_ros.optim.settings import check, setting
+from sim_nodes.params import check, param
 from sapga_ros.policies.exemplar import ExemplarPolicy
 from sim_nodes.problem import Problem
 
@@ -42,11 +42,11 @@ from sim_nodes.problem import Problem
 class CmaesParams:
     """Strategy parameters of CMA-ES."""
 
-    exemplars: int = setting(50, 'CMA-ES: L, exemplars of every policy', low=1, high=100_000)
-    sigma0: float = setting(0.3, 'CMA-ES: initial step size, in gene units (each gene is in '
-                            '[0, 1])', low=1e-12, high=1.0)
-    popsize: int = setting(0, 'CMA-ES: lambda, candidates per generation; 0: pycma\'s '
-                           '4 + 3 ln N', low=0, high=1_000_000)
+    exemplars: int = param(50, 'CMA-ES: L, exemplars of every policy', low=1, high=100_000)
+    sigma0: float = param(0.3, 'CMA-ES: initial step size, in gene units (each gene is in '
+                          '[0, 1])', low=1e-12, high=1.0)
+    popsize: int = param(0, 'CMA-ES: lambda, candidates per generation; 0: pycma\'s '
+                         '4 + 3 ln N', low=0, high=1_000_000)
 
     def __post_init__(self) -> None:
         check(self)
