@@ -2,8 +2,9 @@
 and the physical limit of a problem.
 
     sapga experiment NAME --out DIR [--only 2,4] [--seeds N] [--scale F] [--workers W]
-                     [--backend local|ray] [--address ADDR]
-    sapga experiment report DIR
+                     [--backend local|ray] [--address ADDR] [--robustness NAME[,NAME]
+                     [--robustness-scales F,F] [--robustness-episodes N]]
+    sapga experiment report DIR [--robustness ...]
     sapga limit --problem P [--alternative-goal] [--width W] [--cells C] [--per-cell K]
                 [--seed S] [--json] [--out FILE.json]
     sapga limit --replay FILE.json [FILE.json ...] [--json]
@@ -14,7 +15,8 @@ import argparse
 import math
 from pathlib import Path
 
-from sapga_ros.cli.args import nonneg_int, positive_int
+from sapga_ros.cli.args import episode_steps, nonneg_int, positive_int
+from sapga_ros.cli.robustness import PROFILES, scale_list
 from sapga_ros.errors import SapgaError
 from sapga_ros.training.experiment_set import MAX_SCALE, MAX_SEEDS
 
@@ -64,15 +66,25 @@ def add_experiment_arguments(ex: argparse.ArgumentParser) -> None:
                     help='local worker processes, or tasks on a Ray cluster')
     ex.add_argument('--address', help='with --backend ray: a running cluster (default: start '
                                       'a local Ray instance)')
+    ex.add_argument('--robustness', metavar='NAME[,NAME]',
+                    help='also measure each row\'s returned policies against these disturbance '
+                         'profiles (e.g. field,latency; "default": sensor,latency,mismatch,'
+                         'push,field) and draw success-rate curves in the report')
+    ex.add_argument('--robustness-scales', type=scale_list, default=[0.0, 0.5, 1.0, 2.0],
+                    metavar='F,F', help='with --robustness: size factors (default 0,0.5,1,2)')
+    ex.add_argument('--robustness-episodes', type=episode_steps, default=20, metavar='N',
+                    help='with --robustness: held-out episodes per policy and size '
+                         '(default 20)')
 
 
 def cmd_experiment(args) -> int:
     from sapga_ros.training.experiments import run_experiments
     from sapga_ros.viz.report import write_report
+    curves = _curves(args)
     if args.name == 'report':
         if not args.dir:
             raise SapgaError('experiment report needs the experiment directory')
-        path = write_report(Path(args.dir))
+        path = write_report(Path(args.dir), curves=curves)
         print(f'report: {path}')
         return 0
     if args.dir:
@@ -89,9 +101,27 @@ def cmd_experiment(args) -> int:
             raise SapgaError(f'--only: expected comma-separated ids, got {args.only[:40]!r}')
     run_experiments(args.name, args.out, only, args.seeds, args.scale, args.workers or None,
                     backend=args.backend, address=args.address)
-    path = write_report(Path(args.out))
+    path = write_report(Path(args.out), curves=curves)
     print(f'report: {path}')
     return 0
+
+
+def _curves(args):
+    """The robustness curves the options ask for (None: none)."""
+    from sapga_ros.viz.report_robustness import CurveSettings
+    if not args.robustness:
+        return None
+    names = [n.strip() for n in args.robustness.split(',') if n.strip()]
+    if names == ['default']:
+        names = list(PROFILES)
+    if not names or len(names) > 20:
+        raise SapgaError(f'--robustness: expected 1 to 20 profile names, got '
+                         f'{args.robustness[:40]!r}')
+    from sim_nodes.disturbance import load_disturbance
+    for name in names:
+        load_disturbance(name)            # an unknown name: one line, before any run
+    return CurveSettings(tuple(names), tuple(args.robustness_scales),
+                         args.robustness_episodes)
 
 
 def add_limit_arguments(li: argparse.ArgumentParser) -> None:

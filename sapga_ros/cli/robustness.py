@@ -12,8 +12,6 @@ steps); each policy runs ``--episodes`` held-out disturbed episodes at each size
 from __future__ import annotations
 
 import argparse
-import json
-import re
 from pathlib import Path
 
 from sapga_ros.cli.args import check_output_dir, episode_steps, nonneg_int
@@ -21,7 +19,7 @@ from sapga_ros.cli.args import check_output_dir, episode_steps, nonneg_int
 PROFILES = ('sensor', 'latency', 'mismatch', 'push', 'field')
 
 
-def _scales(text: str) -> list[float]:
+def scale_list(text: str) -> list[float]:
     try:
         values = [float(x) for x in text.split(',')]
     except ValueError:
@@ -38,7 +36,7 @@ def add_robustness_arguments(r: argparse.ArgumentParser) -> None:
                    'robustness.json (created if missing)')
     r.add_argument('--disturbance', action='append', metavar='NAME',
                    help=f'profile to sweep (repeatable; default: {", ".join(PROFILES)})')
-    r.add_argument('--scales', type=_scales, default=[0.0, 0.5, 1.0, 2.0, 4.0],
+    r.add_argument('--scales', type=scale_list, default=[0.0, 0.5, 1.0, 2.0, 4.0],
                    help='size factors (default 0,0.5,1,2,4)')
     r.add_argument('--episodes', type=episode_steps, default=50,
                    help='disturbed episodes per policy and size (default 50)')
@@ -47,9 +45,11 @@ def add_robustness_arguments(r: argparse.ArgumentParser) -> None:
 
 def cmd_robustness(args: argparse.Namespace) -> int:
     from sapga_ros.errors import SapgaError
+    from sapga_ros.evaluation.sweep import sweep
+    from sapga_ros.io.jsonfile import dumps
+    from sapga_ros.io.atomic import write_inside
     from sapga_ros.policies.kinds import load_any_policy, policy_delta
-    from sapga_ros.evaluation.evaluator import Evaluator
-    from sapga_ros.evaluation.robust import Robust, episodes_summary
+    from sapga_ros.viz.robustness_plot import curve_figures
     from sim_nodes.disturbance import load_disturbance
     out = Path(args.out)
     check_output_dir(out, '--out')
@@ -57,41 +57,20 @@ def cmd_robustness(args: argparse.Namespace) -> int:
     if len({p.problem.name for p in policies}) > 1:
         raise SapgaError('robustness curves compare policies of one problem')
     profiles = [load_disturbance(name) for name in args.disturbance or PROFILES]
-    results = []
+    results, curves = [], {}
     for profile in profiles:
         for f, policy in zip(args.policies, policies):
-            delta = policy_delta(policy)
-            rows = []
-            for scale in args.scales:
-                ev = Evaluator(policy.problem, delta, disturbance=profile.scaled(scale))
-                row = episodes_summary(ev, policy, Robust(args.episodes, seed=args.seed))
-                rows.append({**row, 'disturbance': profile.name, 'scale': scale, 'policy': f})
+            rows = [{**r, 'policy': f} for r in sweep(policy, policy_delta(policy), profile,
+                                                      args.scales, args.episodes, args.seed)]
             results += rows
+            curves.setdefault(profile.name, {})[Path(f).stem] = [
+                (r['scale'], r['success_rate'], None) for r in rows]
             print(f'{profile.name} {f}: success ' + ', '.join(
                 f"x{r['scale']:g} {r['success_rate']:.2f}" for r in rows), flush=True)
     out.mkdir(parents=True, exist_ok=True)
-    (out / 'robustness.json').write_text(json.dumps(results, indent=1), encoding='utf-8')
-    _figures(results, profiles, args.policies, out)
+    write_inside(out, 'robustness.json', dumps(results, indent=1))
+    success = results[0]['success'] if results else 'success'
+    curve_figures(curves, out, '', f'success rate ({success})',
+                  f'{args.episodes} episodes a point')
     print(f'wrote {out}/robustness.json and {len(profiles)} figures')
     return 0
-
-
-def _figures(results: list[dict], profiles: list, files: list[str], out: Path) -> None:
-    import matplotlib
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
-    for profile in profiles:
-        fig, ax = plt.subplots(figsize=(6, 4))
-        for f in files:
-            rows = [r for r in results if r['disturbance'] == profile.name and r['policy'] == f]
-            ax.plot([r['scale'] for r in rows], [r['success_rate'] for r in rows], 'o-',
-                    label=Path(f).stem)
-        ax.set_xlabel(f'size x the {profile.name} profile')
-        ax.set_ylabel(f"success rate ({rows[0]['success']})" if rows else 'success rate')
-        ax.set_ylim(-0.02, 1.02)
-        ax.set_title(f'{profile.name}: {rows[0]["episodes"] if rows else 0} episodes a point')
-        ax.grid(alpha=0.3)
-        ax.legend()
-        fig.tight_layout()
-        fig.savefig(out / f"{re.sub(r'[^A-Za-z0-9_-]', '_', profile.name)}.png", dpi=100)
-        plt.close(fig)

@@ -82,7 +82,8 @@ def summarise(exp: Experiment, runs: Iterable[dict], budget: int) -> dict:
     if all('hold_fraction' in f for f in finals):
         final.update(hold_summary(finals))
     return {'id': exp.id, 'problem': exp.problem, 'method': exp.method, 'delta': exp.delta,
-            'style': exp.style, 'variant': exp.variant, 'catch': exp.catch, 'paper': exp.paper,
+            'style': exp.style, 'variant': exp.variant, 'catch': exp.catch,
+            'disturbance': exp.disturbance, 'paper': exp.paper,
             'group': exp.group,
             'steps': budget, 'seeds': seeds, 'grid': grid.tolist(),
             'best_value': stat(best), 'delta_star': stat(dstar),

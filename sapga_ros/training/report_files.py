@@ -93,6 +93,7 @@ def check_summary(doc: Any, where: str) -> dict:
                                                length=len(grid), low=0, high=1),
            'final': _final(get('final'), f'{where}.final', len(seeds))}
     for key, default, pattern in (('style', 'state-action', WORD), ('variant', 'paper', WORD),
+                                  ('catch', 'none', WORD), ('disturbance', 'none', None),
                                   ('group', 'paper', WORD), ('paper', '', None)):
         out[key] = schema.text(s.get(key, default), f'{where}.{key}', pattern=pattern)
     return out

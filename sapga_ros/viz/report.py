@@ -229,8 +229,9 @@ def limits(out: Path) -> list[str]:
     return lines + ['']
 
 
-def write_report(out: Path, with_figure5: bool = True) -> Path:
-    """Write ``out/report.md`` from the directory's files; return its path."""
+def write_report(out: Path, with_figure5: bool = True, curves=None) -> Path:
+    """Write ``out/report.md`` from the directory's files; return its path.  ``curves``
+    (``report_robustness.CurveSettings``): also measure and draw robustness curves."""
     from sapga_ros.viz.summary_plot import plot_summaries
     if not (out / 'summary.json').is_file():
         raise SapgaError(f'{out}: no summary.json (not an experiment directory, or its runs '
@@ -249,6 +250,9 @@ def write_report(out: Path, with_figure5: bool = True) -> Path:
     titles = {'paper': 'Results', 'ablation': 'Ablation: SAP-GA variants', 'peer': 'Peers'}
     for group, rows in groups.items():
         lines += [f'## {titles.get(group, group)}', ''] + table(rows) + ['']
+    if curves is not None:
+        from sapga_ros.viz.report_robustness import robustness_section
+        lines += ['## Robustness', ''] + robustness_section(out, summaries, curves)
     lim = limits(out)
     if lim:
         lines += ['## Physical limits (open-loop search)', ''] + lim
