@@ -155,8 +155,8 @@ def recorded_episodes(bag: Path) -> tuple[list[dict], list[float]]:
     return ends, rewards
 
 
-def sapga_eval_json(path: Path, capsys) -> dict:
-    assert cli.main(['eval', str(path), '--json']) == 0
+def sapga_eval_json(path: Path, capsys, *extra: str) -> dict:
+    assert cli.main(['eval', str(path), '--json', *extra]) == 0
     return json.loads(capsys.readouterr().out)
 
 
@@ -224,15 +224,20 @@ def test_swingup_runs_the_classical_controller_on_the_hold_task(tmp_path, capsys
     assert end['hold_fraction'] >= 0.95
 
 
-def lockstep_hold_equals_eval(policy: str, tmp_path, capsys) -> tuple[dict, list]:
-    """Deploy ``policy`` (in tmp_path) with a lockstep swingup launch of one episode; its
-    recorded end event equals sapga eval, hold measures included; (end event, rewards)."""
+def lockstep_hold_equals_eval(policy: str, tmp_path, capsys,
+                              n_step: int | None = None) -> tuple[dict, list]:
+    """Deploy ``policy`` (in tmp_path) with a lockstep swingup launch of one episode
+    (``--n-step``: that long); its recorded end event equals sapga eval (``--max-steps``),
+    hold measures included; (end event, rewards)."""
     capsys.readouterr()
+    length = [] if n_step is None else ['--n-step', str(n_step)]
     done = launch(['swingup', '--policy', policy, '--mode', 'lockstep', '--episodes', '1',
-                   '--out', 'rec'], tmp_path)
+                   '--out', 'rec', *length], tmp_path)
     assert 'every lockstep episode is equal' in done.stdout
     (end,), rewards = recorded_episodes(the_bag(tmp_path / 'rec'))
-    expected = sapga_eval_json(tmp_path / policy, capsys)
+    expected = sapga_eval_json(tmp_path / policy, capsys,
+                               *(['--max-steps', str(n_step)] if n_step else []))
+    assert n_step is None or end['step'] == n_step
     for key in ('return', 'steps', 'first_entry_step', 'hold_fraction', 'rail_contacts'):
         assert end['step' if key == 'steps' else key] == expected[key], key
     return end, rewards
@@ -240,33 +245,25 @@ def lockstep_hold_equals_eval(policy: str, tmp_path, capsys) -> tuple[dict, list
 
 def test_swingup_runs_a_hybrid_policy_like_sapga_eval(tmp_path, capsys):
     """An exemplar policy with an LQR catch (sapga train --catch lqr) through the policy
-    node: the lockstep hold episode equals sapga eval, hold measures included."""
+    node: the lockstep hold episode, run 1,200 steps (60 s) with --n-step, equals sapga eval
+    --max-steps 1200, hold measures included."""
     assert cli.main(['train', '--problem', 'acrobot_hold', '--steps', '300000', '--seed', '1',
                      '--catch', 'lqr', '--quiet', '--out', str(tmp_path / 'h.json')]) == 0
-    lockstep_hold_equals_eval('h.json', tmp_path, capsys)
+    lockstep_hold_equals_eval('h.json', tmp_path, capsys, n_step=1200)
 
 
-@pytest.mark.long
-def test_a_realtime_hold_launch_steps_every_step_in_realtime_and_holds(tmp_path, capsys):
-    """`sapga launch swingup --mode realtime` of the classical acrobot_hold policy: the bag,
-    read back with rosbags, holds all 1000 states with hold fraction >= 0.95 (computed here
-    from the states and the goal box), and no step was taken in lockstep: at 10x real time
-    the states span at least 0.6 of the episode's 5 s (a lockstep start ran ~780 of them
-    back to back, in about a second)."""
+def realtime_states(bag: Path, pr) -> tuple[list[float], list[bool]]:
+    """Receive times and 'in S_delta' of each distinct state of ``bag`` (read back with
+    rosbags; the first state, re-published until answered, once), computed here from the
+    states and the acrobot's goal box."""
     from rosbags.highlevel import AnyReader
-    assert cli.main(['classical', '--problem', 'acrobot_hold', '--out',
-                     str(tmp_path / 'c.json')]) == 0
-    capsys.readouterr()
-    launch(['swingup', '--policy', 'c.json', '--mode', 'realtime', '--episodes', '1',
-            '--real-time-factor', '10', '--out', 'rec'], tmp_path)
-    pr = load_problem('acrobot_hold')
     times, inside, stamps = [], [], set()
-    with AnyReader([the_bag(tmp_path / 'rec')]) as reader:
+    with AnyReader([bag]) as reader:
         wanted = [c for c in reader.connections if c.topic == '/joint_states']
         for connection, t, raw in reader.messages(connections=wanted):
             msg = reader.deserialize(raw, connection.msgtype)
             stamp = (msg.header.stamp.sec, msg.header.stamp.nanosec)
-            if stamp in stamps:             # the first state, re-published until answered
+            if stamp in stamps:
                 continue
             stamps.add(stamp)
             s = np.array([*msg.position, *msg.velocity])
@@ -276,7 +273,43 @@ def test_a_realtime_hold_launch_steps_every_step_in_realtime_and_holds(tmp_path,
                           and abs(s[2]) <= 8 * np.pi * pr.default_delta
                           and abs(s[3]) <= 18 * np.pi * pr.default_delta)
             times.append(t * 1e-9)
+    return times, inside
+
+
+@pytest.mark.long
+def test_a_realtime_hold_launch_steps_every_step_in_realtime_and_holds(tmp_path, capsys):
+    """`sapga launch swingup --mode realtime` of the classical acrobot_hold policy: the bag,
+    read back with rosbags, holds all 1000 states with hold fraction >= 0.95 (computed here
+    from the states and the goal box), and no step was taken in lockstep: at 10x real time
+    the states span at least 0.6 of the episode's 5 s (a lockstep start ran ~780 of them
+    back to back, in about a second)."""
+    assert cli.main(['classical', '--problem', 'acrobot_hold', '--out',
+                     str(tmp_path / 'c.json')]) == 0
+    capsys.readouterr()
+    launch(['swingup', '--policy', 'c.json', '--mode', 'realtime', '--episodes', '1',
+            '--real-time-factor', '10', '--out', 'rec'], tmp_path)
+    pr = load_problem('acrobot_hold')
+    times, inside = realtime_states(the_bag(tmp_path / 'rec'), pr)
     assert len(times) == 1001                       # the initial state and 1000 steps
     first = inside.index(True)
     assert sum(inside[first:]) / len(inside[first:]) >= 0.95
     assert times[-1] - times[0] >= 0.6 * 1000 * pr.dt * pr.substeps / 10
+
+
+@pytest.mark.long
+def test_a_realtime_minute_of_the_hybrid_holds(tmp_path, capsys):
+    """The hybrid (exemplars + LQR catch, `sapga train --problem acrobot_hold --catch lqr
+    --steps 3000000 --seed 0`) deployed for a minute of sim time in real time (1,200 steps
+    at 20 Hz, real-time factor 1): the bag, read back with rosbags, has every state, holds
+    with hold fraction >= 0.95 after its first entry, and spans most of the minute."""
+    assert cli.main(['train', '--problem', 'acrobot_hold', '--steps', '3000000', '--seed', '0',
+                     '--catch', 'lqr', '--quiet', '--out', str(tmp_path / 'h.json')]) == 0
+    capsys.readouterr()
+    launch(['swingup', '--policy', 'h.json', '--mode', 'realtime', '--episodes', '1',
+            '--n-step', '1200', '--out', 'rec'], tmp_path)
+    pr = load_problem('acrobot_hold')
+    times, inside = realtime_states(the_bag(tmp_path / 'rec'), pr)
+    assert len(times) == 1201                       # the initial state and 1200 steps
+    first = inside.index(True)
+    assert sum(inside[first:]) / len(inside[first:]) >= 0.95
+    assert times[-1] - times[0] >= 0.9 * 1200 * pr.dt * pr.substeps

@@ -42,6 +42,7 @@ class StackOptions:
     mode: str = 'lockstep'
     real_time_factor: float = 1.0
     engine: str = 'kernel'         # mujoco: the MuJoCo robot, driven through the mapping
+    n_step: int | None = None      # MDP steps per episode (None: the problem's)
 
 
 @dataclass
@@ -84,7 +85,8 @@ class DeployStack:
             'problem': o.problem.name, 'mode': o.mode, 'delta': float(o.delta),
             'auto_reset': True, 'max_episodes': o.episodes, 'republish_period': 0.0,
             'real_time_factor': float(o.real_time_factor), 'wait_for_recorder': RECORDER,
-            'recorder_timeout': CONNECT_TIMEOUT_S, 'engine': o.engine})
+            'recorder_timeout': CONNECT_TIMEOUT_S, 'engine': o.engine,
+            'n_step': o.problem.resolve('n_step', o.n_step)})
 
     def spawn(self, name: str, exe: str, params: dict[str, Any]) -> None:
         """Start package executable ``exe`` as child ``name`` with ``params``."""
@@ -205,10 +207,11 @@ def robot_mapping(problem: Problem) -> dict[str, Any]:
             'command_output': 'effort_array', 'effort_topic': EFFORT_TOPIC}
 
 
-def offline_episode(policy: Any, delta: float) -> dict:
-    """The policy's offline evaluation (``sapga eval --json``): return, delta*, steps."""
+def offline_episode(policy: Any, delta: float, n_step: int | None = None) -> dict:
+    """The policy's offline evaluation (``sapga eval --json [--max-steps N]``): return,
+    delta*, steps."""
     from sapga_ros.evaluation.evaluator import run_policy_episode
-    return run_policy_episode(policy, delta).summary()
+    return run_policy_episode(policy, delta, n_step).summary()
 
 
 def event_summary(event: dict) -> dict:

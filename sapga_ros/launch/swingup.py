@@ -1,8 +1,8 @@
 """``sapga launch swingup``: simulator + policy node + rosbag2 recorder for N episodes.
 
     sapga launch swingup --policy FILE --out DIR [--mode lockstep|realtime] [--episodes N]
-                         [--problem P] [--delta D] [--real-time-factor F] [--engine E]
-                         [--namespace NS] [--remap FROM:=TO ...] [--ros-args ARGS...]
+                         [--problem P] [--delta D] [--n-step N] [--real-time-factor F]
+                         [--engine E] [--namespace NS] [--remap FROM:=TO ...] [--ros-args ARGS...]
 
 The problem is the policy file's; delta is ``--delta``, else the policy's training delta
 (``meta.delta``), else the problem's default.  The order makes the recording whole and a
@@ -49,7 +49,7 @@ from sapga_ros.launch.stack import (DeployStack, StackOptions, episode_lines,  #
                                     event_summary, offline_episode, same_episode)
 from sapga_ros.policies.kinds import policy_delta
 from sim_nodes.options import add_param
-from sim_nodes.params import DELTA
+from sim_nodes.params import DELTA, N_STEP
 from sim_nodes.problem import load_problem
 from sim_nodes.ros.sim_settings import sim_parameters
 
@@ -92,6 +92,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--problem', help="problem (default: the policy file's; must match it)")
     add_param(p, DELTA, help="goal difficulty (default: the policy's training delta, else "
                              "the problem's)")
+    add_param(p, N_STEP, help='MDP steps per episode (default: the problem\'s; e.g. 1200 = '
+                              '60 s of an acrobot_hold episode)')
     add_param(p, sim['real_time_factor'], help='realtime mode: sim time / wall time '
                                                '(default 1)')
     add_param(p, sim['engine'], help='kernel (default) or mujoco: the MuJoCo robot, which '
@@ -108,7 +110,8 @@ def run_swingup(args: argparse.Namespace, sup: Supervisor) -> SwingupResult:
     policy = load_policy(Path(args.policy).resolve(), problem)   # checked before any start
     problem = policy.problem
     opts = StackOptions(problem, Path(args.out).resolve(), policy_delta(policy, args.delta),
-                        args.episodes, args.mode, args.real_time_factor, args.engine)
+                        args.episodes, args.mode, args.real_time_factor, args.engine,
+                        args.n_step)
     sup.say(f'{problem.name}: policy {args.policy} ({len(policy)} exemplars), delta '
             f'{opts.delta}, {opts.episodes} episode(s) in {opts.mode} mode, recording to '
             f'{opts.out}' + (', on the MuJoCo robot' if opts.engine == 'mujoco' else ''))
@@ -129,7 +132,7 @@ def run_swingup(args: argparse.Namespace, sup: Supervisor) -> SwingupResult:
         ros.close()
     offline = equal = None
     if opts.mode == 'lockstep' and opts.engine == 'kernel':   # MuJoCo is not the kernel
-        offline = offline_episode(policy, opts.delta)
+        offline = offline_episode(policy, opts.delta, opts.n_step)
         equal = all(same_episode(event_summary(e), offline) for e in ends)
     return SwingupResult(ends, stack.recordings(), offline, equal, stack.check_recording(ends))
 
