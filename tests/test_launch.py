@@ -276,24 +276,19 @@ def realtime_states(bag: Path, pr) -> tuple[list[float], list[bool]]:
     return times, inside
 
 
-@pytest.mark.long
-def test_a_realtime_hold_launch_steps_every_step_in_realtime_and_holds(tmp_path, capsys):
-    """`sapga launch swingup --mode realtime` of the classical acrobot_hold policy: the bag,
-    read back with rosbags, holds all 1000 states with hold fraction >= 0.95 (computed here
-    from the states and the goal box), and no step was taken in lockstep: at 10x real time
-    the states span at least 0.6 of the episode's 5 s (a lockstep start ran ~780 of them
-    back to back, in about a second)."""
-    assert cli.main(['classical', '--problem', 'acrobot_hold', '--out',
-                     str(tmp_path / 'c.json')]) == 0
-    capsys.readouterr()
-    launch(['swingup', '--policy', 'c.json', '--mode', 'realtime', '--episodes', '1',
-            '--real-time-factor', '10', '--out', 'rec'], tmp_path)
+def realtime_hold(tmp_path: Path, policy: str, steps: int, factor: float, span: float) -> None:
+    """A realtime swingup launch of ``policy`` for one episode of ``steps`` steps at
+    real-time factor ``factor``: the bag has every state, the hold fraction after the first
+    entry is >= 0.95, and the states span at least ``span`` of the episode's wall time."""
+    launch(['swingup', '--policy', policy, '--mode', 'realtime', '--episodes', '1',
+            '--n-step', str(steps), '--real-time-factor', str(factor), '--out', 'rec'],
+           tmp_path)
     pr = load_problem('acrobot_hold')
     times, inside = realtime_states(the_bag(tmp_path / 'rec'), pr)
-    assert len(times) == 1001                       # the initial state and 1000 steps
+    assert len(times) == steps + 1                  # the initial state and every step
     first = inside.index(True)
     assert sum(inside[first:]) / len(inside[first:]) >= 0.95
-    assert times[-1] - times[0] >= 0.6 * 1000 * pr.dt * pr.substeps / 10
+    assert times[-1] - times[0] >= span * steps * pr.dt * pr.substeps / factor
 
 
 @pytest.mark.long
@@ -301,15 +296,11 @@ def test_a_realtime_minute_of_the_hybrid_holds(tmp_path, capsys):
     """The hybrid (exemplars + LQR catch, `sapga train --problem acrobot_hold --catch lqr
     --steps 3000000 --seed 0`) deployed for a minute of sim time in real time (1,200 steps
     at 20 Hz, real-time factor 1): the bag, read back with rosbags, has every state, holds
-    with hold fraction >= 0.95 after its first entry, and spans most of the minute."""
+    with hold fraction >= 0.95 after its first entry, and spans most of the minute: no
+    step was taken in lockstep (a lockstep start once ran ~780 steps back to back).  At 10x
+    real time on a loaded machine late commands change the trajectory (the zero-order hold
+    on the last command is part of a realtime run), so this runs at 1x."""
     assert cli.main(['train', '--problem', 'acrobot_hold', '--steps', '3000000', '--seed', '0',
                      '--catch', 'lqr', '--quiet', '--out', str(tmp_path / 'h.json')]) == 0
     capsys.readouterr()
-    launch(['swingup', '--policy', 'h.json', '--mode', 'realtime', '--episodes', '1',
-            '--n-step', '1200', '--out', 'rec'], tmp_path)
-    pr = load_problem('acrobot_hold')
-    times, inside = realtime_states(the_bag(tmp_path / 'rec'), pr)
-    assert len(times) == 1201                       # the initial state and 1200 steps
-    first = inside.index(True)
-    assert sum(inside[first:]) / len(inside[first:]) >= 0.95
-    assert times[-1] - times[0] >= 0.9 * 1200 * pr.dt * pr.substeps
+    realtime_hold(tmp_path, 'h.json', 1200, 1.0, 0.9)
