@@ -180,19 +180,39 @@ class Problem:
         return tuple(self.ros.get('joints', ()))
 
     @property
-    def contact_below(self) -> float:
-        """A step whose reward is below this touched the end stop (-inf: no end stop).
-
-        A model with an end stop names its penalty parameter (``END_STOP_PENALTY``); the
-        penalty is added to a step's reward on a contact, so a contact step's reward lies
-        ``|penalty|`` below the lowest contact-free reward (``reward_range`` low minus the
-        penalty); the threshold is halfway."""
+    def end_stop_penalty(self) -> float:
+        """The reward added on an end-stop contact: the model's ``END_STOP_PENALTY``
+        parameter (0: no end stop, or no ``reward_range`` to place it in)."""
         from sim_nodes.models import model_module
         name = getattr(model_module(self.model), 'END_STOP_PENALTY', None)
         penalty = self.physics.get(name, 0.0) if name else 0.0
-        if not penalty < 0.0 or self.reward_range is None:
-            return -math.inf
-        return self.reward_range[0] - penalty + penalty / 2.0
+        return penalty if penalty < 0.0 and self.reward_range is not None else 0.0
+
+    @property
+    def lowest_free_reward(self) -> float:
+        """The lowest reward of a step that does not touch the end stop (-inf: no end stop):
+        ``reward_range`` low is the lowest contact step, the penalty added, so the lowest
+        contact-free step lies ``|penalty|`` above it."""
+        penalty = self.end_stop_penalty
+        return self.reward_range[0] - penalty if penalty < 0.0 else -math.inf
+
+    @property
+    def contact_below(self) -> float:
+        """A step whose reward is below this touched the end stop (-inf: no end stop):
+        halfway between the lowest contact-free reward and the lowest contact step."""
+        penalty = self.end_stop_penalty
+        return self.lowest_free_reward + penalty / 2.0 if penalty < 0.0 else -math.inf
+
+    @property
+    def fail_charge(self) -> float:
+        """The reward charged for every step an episode did not run because it ended at an
+        end-stop contact (``end_stop: fail``): an episode ending at the contact in step t of
+        n_step gets ``(n_step - t) * fail_charge`` added to its return.  It is the lowest
+        contact-free step reward, so an early end never scores above running the same
+        trajectory on at the worst reward: without it every step's negative reward made
+        an early end at the rail worth more than a full episode.  NaN: a contact does not
+        end the episode (``end_stop: stop``)."""
+        return self.lowest_free_reward if self.end_stop == 'fail' else math.nan
 
     def params(self) -> np.ndarray:
         """The model kernel's parameter vector (sim_nodes.models.<model>.pack_params)."""

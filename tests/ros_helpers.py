@@ -269,8 +269,9 @@ class Probe(Node):
                          if e['event'] == kind and e['episode'] == episode), None)
 
     def end_of(self, episode: int) -> dict | None:
-        """The goal / step_limit event that ended ``episode``, or None."""
-        return self.event('goal', episode) or self.event('step_limit', episode)
+        """The goal / step_limit / end_stop event that ended ``episode``, or None."""
+        return self.event('goal', episode) or self.event('step_limit', episode) or \
+            self.event('end_stop', episode)
 
 
 def run_lockstep(ros, problem, policy, path, delta, episodes=2, **sim_params):

@@ -103,7 +103,9 @@ def test_batch_and_traced_episode_report_the_independent_hold_measures(name):
         assert (hold['first_entry_step'], hold['rail_contacts']) == (first, contacts)
         assert hold['hold_fraction'] == pytest.approx(fraction, abs=1e-12)
         inside = sum(reference.goal_delta(pr, s) <= ev.delta for s in ep.states[1:])
-        assert ep.ret == pytest.approx(ep.rewards.sum() + pr.hold_bonus * inside, rel=1e-12)
+        charge = (pr.n_step - ep.steps) * pr.fail_charge if ep.contacts else 0.0
+        assert ep.ret == pytest.approx(ep.rewards.sum() + pr.hold_bonus * inside + charge,
+                                       rel=1e-12)
     if name == 'pdip_hold':
         assert batch.contacts.max() > 0 and min(batch.steps) < pr.n_step
 
@@ -215,7 +217,7 @@ def test_the_hold_experiment_set_parses_and_its_classical_rows_run(tmp_path):
 def test_the_gym_env_runs_the_hold_task_like_the_engine(name):
     """Evaluator episodes replayed through the Gymnasium env: the same states, rewards plus
     the bonus in S_delta summing to the engine's return, no goal end; under end_stop: fail
-    the contact terminates."""
+    the contact terminates, its reward charged for the steps not run."""
     import gymnasium
     import sapga_ros.gym
     pr = load_problem(name)
@@ -232,7 +234,8 @@ def test_the_gym_env_runs_the_hold_task_like_the_engine(name):
             obs, r, terminated, truncated, _ = env.step(index[a])
             states.append(obs)
             inside = reference.goal_delta(pr, ep.states[t + 1]) <= pr.default_delta
-            assert r == ep.rewards[t] + (pr.hold_bonus if inside else 0.0)
+            charge = (pr.n_step - ep.steps) * pr.fail_charge if terminated else 0.0
+            assert r == ep.rewards[t] + (pr.hold_bonus if inside else 0.0) + charge
             total += r
         assert np.array_equal(np.array(states), ep.states[1:])
         assert total == pytest.approx(ep.ret, rel=1e-12)   # the engine adds the bonus apart

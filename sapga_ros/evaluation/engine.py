@@ -37,7 +37,7 @@ BLOCKS_PER_THREAD = 4  # shares of a batch per thread, for load balance
 @kernel
 def run_share(model, style, ex, ex2, act, val, lengths, first, stop, s0, p, inv_range,
               is_angle, best, inv_scale, fixed, delta, n_step, actions, radius2, goal_u,
-              alt_inv_scale, alt_fixed, ends_in_goal, hold_bonus, contact_below, fail_on_contact,
+              alt_inv_scale, alt_fixed, ends_in_goal, hold_bonus, contact_below, fail_charge,
               ctl, dist, keys, returns, steps, dstar, dstar_alt, reached, used, first_entry, held,
               contacts, tr_state, tr_idx, tr_act, tr_reward):
     """Evaluate policies first..stop-1 on LANES lanes.
@@ -46,9 +46,12 @@ def run_share(model, style, ex, ex2, act, val, lengths, first, stop, s0, p, inv_
     ``hold_bonus`` is added to the return for every step that ends in S_delta;
     ``first_entry`` is the first such step (0: none), ``held`` their count from it on
     (``held / (steps - first_entry + 1)`` is the hold fraction).  A step whose reward is
-    below ``contact_below`` touched the end stop (``contacts``); ``fail_on_contact`` ends
-    the episode there.  ``ctl[k]`` is policy k's controller
-    (``sapga_ros.evaluation.control``; one 0 column: none).
+    below ``contact_below`` touched the end stop (``contacts``); unless ``fail_charge`` is
+    NaN (``end_stop: stop``) the contact ends the episode (a goal end in the same step
+    comes first) and every step it did not run is charged ``fail_charge``
+    (``Problem.fail_charge``): a contact ending step t adds ``(n_step - t) * fail_charge``
+    to the return, after the step's reward and bonus.  ``ctl[k]`` is policy k's
+    controller (``sapga_ros.evaluation.control``; one 0 column: none).
 
     ``dstar_alt`` is delta* under an alternative reading of the goal box (alt_inv_scale,
     alt_fixed; measured only, never ending an episode); empty alt arrays: not measured.
@@ -72,6 +75,7 @@ def run_share(model, style, ex, ex2, act, val, lengths, first, stop, s0, p, inv_
     trace = tr_state.shape[0] > n_step
     alt = alt_inv_scale.shape[0] > 0
     disturbed = dist[ON] > 0.0
+    fail = not np.isnan(fail_charge)          # an end-stop contact ends the episode
     own_params = disturbed and dist[MISMATCH] > 0.0   # each lane steps its own plant
     obs = np.empty((dim, LANES))                # what the selector sees
     plant = np.empty((LANES, p.shape[0]))      # each lane's plant parameters
@@ -176,7 +180,11 @@ def run_share(model, style, ex, ex2, act, val, lengths, first, stop, s0, p, inv_
                     first_entry[k] = steps[k]
                     if not ends_in_goal:
                         reached[k] = True
-            if (reached[k] and ends_in_goal) or steps[k] >= n_step or (hit and fail_on_contact):
+            goal = reached[k] and ends_in_goal
+            failed = hit and fail and not goal
+            if failed:                          # charged for the steps it did not run
+                returns[k] += (n_step - steps[k]) * fail_charge
+            if goal or steps[k] >= n_step or failed:
                 S[:, lane] = s0
                 a[lane] = 0.0
                 pol[lane] = -1
@@ -187,7 +195,7 @@ def run_share(model, style, ex, ex2, act, val, lengths, first, stop, s0, p, inv_
 def evaluate_batch(model, style, ex, ex2, act, val, lengths, s0, p, inv_range, is_angle,
                    best, inv_scale, fixed, delta, n_step, actions, radius2, goal_u,
                    alt_inv_scale, alt_fixed, ends_in_goal, hold_bonus, contact_below,
-                   fail_on_contact, ctl, dist, keys, shares, returns, steps, dstar, dstar_alt,
+                   fail_charge, ctl, dist, keys, shares, returns, steps, dstar, dstar_alt,
                    reached, used, first_entry, held, contacts):
     """Evaluate policies ex[k, :, :lengths[k]] in ``shares`` parallel shares (untraced;
     ``dist``, ``keys``: the disturbances, as in ``run_share``)."""
@@ -201,5 +209,5 @@ def evaluate_batch(model, style, ex, ex2, act, val, lengths, s0, p, inv_range, i
         run_share(model, style, ex, ex2, act, val, lengths, first, stop, s0, p, inv_range,
                   is_angle, best, inv_scale, fixed, delta, n_step, actions, radius2, goal_u,
                   alt_inv_scale, alt_fixed, ends_in_goal, hold_bonus, contact_below,
-                  fail_on_contact, ctl, dist, keys, returns, steps, dstar, dstar_alt, reached,
+                  fail_charge, ctl, dist, keys, returns, steps, dstar, dstar_alt, reached,
                   used, first_entry, held, contacts, no_state, no_idx, no_val, no_val)

@@ -79,7 +79,7 @@ class Evaluator:
                                        self.is_angle)[:, 0].copy()
         self.catch: np.ndarray | None = None   # controller row of policies without one
         self.hold = (problem.ends_in_goal, problem.hold_bonus, problem.contact_below,
-                     problem.end_stop == 'fail')
+                     problem.fail_charge)     # NaN: an end-stop contact does not end it
         self.disturbance = disturbance or Disturbance()
         self.dist = self.disturbance.pack(problem)
 

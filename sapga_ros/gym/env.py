@@ -12,7 +12,10 @@ observation space   ``Box(problem.low, problem.high)``, float64: the state vecto
 start               the problem's fixed initial state (``initial:``); a seed is accepted but
                     the start draws nothing
 reward              the kernel's reward of the MDP step (+ ``hold_bonus`` in S_delta on a
-                    problem with ``ends_in_goal: false``, the hold task)
+                    problem with ``ends_in_goal: false``, the hold task; + the charge
+                    ``(n_step - t) * problem.fail_charge`` for the steps not run when an
+                    end-stop contact in step t ends the episode), so an episode's rewards
+                    sum to the episode engine's return
 terminated          ``delta(s) <= delta`` on the new state, after its reward is counted
                     (never on the hold task); an end-stop contact under ``end_stop: fail``
 truncated           after ``n_step`` MDP steps without an end
@@ -99,10 +102,12 @@ class ProblemEnv(gymnasium.Env[np.ndarray, np.int64]):
         self._delta_star = min(self._delta_star, d)
         p = self.problem
         terminated = d <= self.delta and p.ends_in_goal  # after the step's reward is counted
+        failed = reward < p.contact_below and p.end_stop == 'fail' and not terminated
         if d <= self.delta and not p.ends_in_goal:      # the hold task: bonus, no end
             reward += p.hold_bonus
-        if reward < p.contact_below and p.end_stop == 'fail':
-            terminated = True                           # an end-stop contact ends it
+        if failed:                                      # an end-stop contact ends it,
+            reward += (self.n_step - self._steps) * p.fail_charge  # charged the steps left
+            terminated = True
         truncated = not terminated and self._steps >= self.n_step
         self._over = terminated or truncated
         return (self._state.copy(), reward, terminated, truncated,

@@ -80,7 +80,8 @@ class QLearning(Optimizer):
         self._consts = (pr.initial_state, pr.params(), pr.action_values, idx, low, width,
                         tiles, *goal_arrays(pr), pr.is_angle, delta, pr.n_step,
                         pr.ql_epsilon, pr.ql_eta, GAMMA, *alt_goal_arrays(pr),
-                        pr.ends_in_goal, pr.hold_bonus)
+                        pr.ends_in_goal, pr.hold_bonus, pr.contact_below,
+                        pr.fail_charge)
         self._alt = pr.goal_alt_scale is not None
         self._lanes_key = (pr.name, delta, pr.goal_alt_scale)
         self._learnt: tuple | None = None      # a chunk learnt by ``learn_together``

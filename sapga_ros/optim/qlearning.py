@@ -40,8 +40,8 @@ def xorshift_uniform(rng):
 @kernel
 def learn(model, q, visited, rng, s0, p, actions, idx, low, width, tiles, best, inv_scale,
           fixed, is_angle, delta, n_step, epsilon, eta, gamma, alt_inv_scale, alt_fixed,
-          ends_in_goal, hold_bonus, budget, ep_return, ep_steps, ep_dstar, ep_dstar_alt,
-          width_lanes, done, n_ep):
+          ends_in_goal, hold_bonus, contact_below, fail_charge, budget, ep_return, ep_steps,
+          ep_dstar, ep_dstar_alt, width_lanes, done, n_ep):
     """Run whole episodes of model number ``model`` in each lane k until ``budget[k]`` steps
     are spent (or ``ep_return[k]`` is full): lane k learns its own table ``q[k]``
     (``visited[k]``, generator word ``rng[k]``) and no lane reads another's.
@@ -52,12 +52,16 @@ def learn(model, q, visited, rng, s0, p, actions, idx, low, width, tiles, best, 
     of the ep_* arrays (``ep_dstar_alt``: delta* under the alternative goal reading, if
     alt_inv_scale is not empty); ``done[k]``, ``n_ep[k]``: steps simulated, episodes run.
     With ``ends_in_goal`` false (the hold task) S_delta is not terminal and a step ending
-    there earns ``hold_bonus`` besides its reward, as in the episode engine.
+    there earns ``hold_bonus`` besides its reward, as in the episode engine.  Unless
+    ``fail_charge`` is NaN, a step whose reward is below ``contact_below`` (an end-stop
+    contact) is terminal and earns ``(n_step - t) * fail_charge`` besides, the engine's
+    charge for the steps the episode did not run.
     """
     lanes = q.shape[0]
     dim = s0.shape[0]
     n_act = actions.shape[0]
     alt = alt_inv_scale.shape[0] > 0
+    fail = not np.isnan(fail_charge)          # an end-stop contact ends the episode
     S = np.empty((dim, width_lanes))
     for k in range(width_lanes):
         S[:, k] = s0
@@ -110,6 +114,9 @@ def learn(model, q, visited, rng, s0, p, actions, idx, low, width, tiles, best, 
             terminal = d <= delta and ends_in_goal
             if d <= delta and not ends_in_goal:
                 r += hold_bonus
+            if r_buf[k] < contact_below and fail and not terminal:
+                r += (n_step - t[k]) * fail_charge  # the steps it did not run
+                terminal = True
             total[k] += r
             if d < dstar[k]:
                 dstar[k] = d

@@ -56,9 +56,10 @@ def greedy(q, cell):
 @kernel
 def greedy_episode(model, q, s0, p, actions, idx, low, width, tiles, best, inv_scale, fixed,
                    is_angle, delta, n_step, ends_in_goal, hold_bonus, contact_below,
-                   fail_on_contact, tr_state, tr_action, tr_reward, hold):
+                   fail_charge, tr_state, tr_action, tr_reward, hold):
     """The greedy policy's traced episode, with the episode engine's goal, hold-task and
-    end-stop rules; hold = [first entry step (0: none), steps held, end-stop contacts]."""
+    end-stop rules (``fail_charge`` NaN: a contact does not end the episode, else the
+    missed steps' charge); hold = [first entry step (0: none), steps held, contacts]."""
     dim = s0.shape[0]
     S = np.empty((dim, 1))
     S[:, 0] = s0
@@ -95,7 +96,8 @@ def greedy_episode(model, q, s0, p, actions, idx, low, width, tiles, best, inv_s
             if ends_in_goal:
                 break
             total += hold_bonus
-        if hit and fail_on_contact:
+        if hit and not np.isnan(fail_charge):  # charged for the steps it did not run
+            total += (n_step - t) * fail_charge
             break
     return total, t, dstar, reached
 
@@ -128,7 +130,7 @@ class QTable:
         ret, steps, dstar, reached = greedy_episode(
             model_id(pr.model), self.q, pr.initial_state, pr.params(), pr.action_values,
             *self.tiling, *goal_arrays(pr), pr.is_angle, delta, n_step, pr.ends_in_goal,
-            pr.hold_bonus, pr.contact_below, pr.end_stop == 'fail', tr_state, tr_a, tr_r, hold)
+            pr.hold_bonus, pr.contact_below, pr.fail_charge, tr_state, tr_a, tr_r, hold)
         a = tr_a[:steps]
         return Episode(tr_state[:steps + 1].copy(), pr.action_values[a], np.full(steps, -1),
                        tr_r[:steps].copy(), float(ret), int(steps), float(dstar), bool(reached),

@@ -374,7 +374,8 @@ class SimNode(Node):
         self._publish_state()
         if inside and self.problem.ends_in_goal:
             self._end_episode('goal', d)
-        elif hit and self.problem.end_stop == 'fail':
+        elif hit and self.problem.end_stop == 'fail':   # charged for the steps not run
+            self._return += (self.settings.n_step - self._step) * self.problem.fail_charge
             self._end_episode('end_stop', d)
         elif self._step >= self.settings.n_step:
             self._end_episode('step_limit', d)
