@@ -15,12 +15,12 @@ steps the controller is designed for: it remembers the commands in flight and ac
 state predicted for when its command arrives (``sapga_ros.evaluation.control``).
 
 A hybrid (exemplars + catch) is an ordinary exemplar policy document with one more field,
-``"catch": {"K": [...], "P": [[...]], "c": number}`` (and ``delay``, as above).  Both are parsed as hostile input:
-every number finite, every shape checked, the law and gain names known; the error names
-the field.  In memory both are ``ControlledPolicy``: an ``ExemplarPolicy`` (no exemplars for
-the classical kind) with its packed controller row ``control``
-(``sapga_ros.evaluation.control``), so the episode engine, the traced episode and the policy
-node run them like any exemplar policy.
+``"catch": {"K": [...], "P": [[...]], "c": number}`` (and ``delay``, as above).  Both are
+parsed as hostile input: every number finite, every shape checked, the law and gain names
+known; the error names the field.  In memory both are ``ControlledPolicy``: an
+``ExemplarPolicy`` (no exemplars for the classical kind) with its packed controller row
+``control`` (``sapga_ros.evaluation.control``), so the episode engine, the traced episode
+and the policy node run them like any exemplar policy.
 """
 from __future__ import annotations
 
