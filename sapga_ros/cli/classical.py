@@ -1,12 +1,13 @@
 """``sapga classical``: write the classical controller of a problem as a policy file.
 
-    sapga classical --problem P --out FILE.json [--gain NAME=VALUE ...] [--c C]
+    sapga classical --problem P --out FILE.json [--gain NAME=VALUE ...] [--c C] [--delay D]
 
 The LQR about the upright state (the model linearised at the compiled MDP step) behind the
 model's energy swing-up, its action quantised to the problem's action set
 (``sapga_ros.policies.classical``).  The file is a policy of kind ``classical`` that
 ``sapga eval``, the policy node and ``sapga launch swingup`` run like any policy; its
-episode from the initial state is evaluated and stored in ``meta``.
+episode from the initial state is evaluated and stored in ``meta`` (with ``--delay D``, on
+the plant that applies each command D steps late, which the controller is designed for).
 """
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ import argparse
 import math
 from pathlib import Path
 
-from sapga_ros.cli.args import check_output_file
+from sapga_ros.cli.args import add_param, check_output_file
 
 
 def _gain(text: str) -> tuple[str, float]:
@@ -45,22 +46,27 @@ def add_classical_arguments(parser: argparse.ArgumentParser) -> None:
                         help='override a swing-up gain (acrobot: kp, kd, ke; cart: ke, kx, kv)')
     parser.add_argument('--c', type=_catch, help='catch region x\'Px <= c (default: the '
                         'design\'s margin x the measured basin)')
+    from sapga_ros.policies.classical import DELAY
+    add_param(parser, DELAY)
 
 
 def cmd_classical(args) -> int:
     from sapga_ros.evaluation.evaluator import Evaluator
     from sapga_ros.evaluation.classical_design import classical_policy
+    from sim_nodes.disturbance import Disturbance
     from sim_nodes.problem import load_problem
     check_output_file(Path(args.out), '--out')
     problem = load_problem(args.problem)
-    policy = classical_policy(problem, dict(args.gain), args.c)
-    ep = Evaluator(problem).episode(policy)
+    policy = classical_policy(problem, dict(args.gain), args.c, delay=args.delay)
+    late = Disturbance(latency=args.delay) if args.delay else None
+    ep = Evaluator(problem, disturbance=late).episode(policy)
     summary = ep.summary()
     policy.meta.update({'delta': problem.default_delta, 'value': ep.ret,
                         'delta_star': ep.delta_star, **summary, 'gains': policy.gains,
-                        'c': policy.c})
+                        'c': policy.c, **({'latency': args.delay} if args.delay else {})})
     policy.save(args.out)
-    print(f'{problem.name}: classical controller -> {args.out}: return {ep.ret:.3f}, '
+    late_text = f' (latency {args.delay})' if args.delay else ''
+    print(f'{problem.name}: classical controller{late_text} -> {args.out}: return {ep.ret:.3f}, '
           f'delta* {ep.delta_star:.4f}, first entry step {summary["first_entry_step"]}, '
           f'hold fraction {summary["hold_fraction"]:.4f}, rail contacts '
           f'{summary["rail_contacts"]}')

@@ -14,8 +14,19 @@ controller action is the problem's action nearest to the continuous command (tie
 lowest index): the quantisation a real actuator set imposes.  The reported exemplar index
 of a controller step is -1.
 
+Actuation delay: a controller designed for a plant that applies each command d MDP steps
+late (``ctl[DELAY]`` = d > 0) remembers the d commands it issued last (``mem``, oldest
+first, whatever chose them; zero at an episode's start) and acts on the state predicted
+for when its command arrives: the compiled MDP step of the nominal model applied d times
+from the state seen with the commands in flight (a Smith predictor with the model
+itself; near the top, where the model is linear, the LQR of -K on this prediction is the
+LQR of the state augmented with the commands in flight).  The region test, -Kx and the
+swing-up all act on the prediction, so on the undisturbed plant with latency d the
+controlled episode is the undelayed one, d steps later.  d = 0 is the undelayed
+controller.
+
 ``ctl`` (float64, ``sapga_ros.policies.controller_row``) layout: [mode, c, swing-up kind,
-NG swing-up constants, K (D), P (D*D)].
+delay, NG swing-up constants, K (D), P (D*D)].
 The swing-up pumps energy towards the upright energy E_top with the sign of the power the
 actuator can feed (sign(0) = +1, so a pendulum at rest gets a first push).
 Swing-up constants, acrobot (Spong-style energy pumping with a PD on the elbow):
@@ -29,8 +40,9 @@ import numpy as np
 from sim_nodes.jit import kernel
 
 from sapga_ros.exemplars.selectors import select
-from sapga_ros.policies.controller_row import (CLASSICAL, C, GAINS, HEAD, MODE, NG, NONE,
-                                               SWING, SWING_ACROBOT, SWING_CART)
+from sim_nodes.models.dispatch import step_lanes
+from sapga_ros.policies.controller_row import (CLASSICAL, DELAY, C, GAINS, HEAD, MODE, NG,
+                                               NONE, SWING, SWING_ACROBOT, SWING_CART)
 
 
 @kernel(inline='always')
@@ -53,6 +65,19 @@ def nearest_action(u, actions):
         if abs(actions[a] - u) < abs(actions[best] - u):
             best = a
     return actions[best]
+
+
+@kernel(inline='always')
+def predict(ctl, model, s, p, mem, w_state, w_act, w_rew, out):
+    """Into ``out``: the state when a command issued now acts, ``ctl[DELAY]`` MDP steps of
+    the nominal model from ``s`` with the commands in flight ``mem`` (s itself: none)."""
+    for i in range(s.shape[0]):
+        w_state[i, 0] = s[i]
+    for m in range(int(ctl[DELAY])):
+        w_act[0] = mem[m]
+        step_lanes(model, w_state, w_act, p, 1, w_rew)
+    for i in range(s.shape[0]):
+        out[i] = w_state[i, 0]
 
 
 @kernel
@@ -100,19 +125,49 @@ def swing_up(ctl, s):
     return 0.0
 
 
+@kernel(inline='always')
+def remember(ctl, mem, action):
+    """Note the command issued in the delayed controller's memory (oldest first)."""
+    delay = int(ctl[DELAY])
+    for m in range(delay - 1):
+        mem[m] = mem[m + 1]
+    if delay > 0:
+        mem[delay - 1] = action
+
+
 @kernel(inline='always')   # inlined into the episode loop, as the selector is
 def choose(style, model, s, ex, ex2, act, val, n, actions, p, inv_range, is_angle, radius2,
-           goal_u, progress, used, u, acc, w_state, w_act, w_rew, ctl, best, x):
+           goal_u, progress, used, u, acc, w_state, w_act, w_rew, ctl, best, x, mem):
     """(exemplar index, action value, new progress): ``select`` behind the controller
-    ``ctl`` (see the module docstring; x (D,) is scratch)."""
-    if ctl[MODE] != NONE:
-        inside, command = lqr(ctl, s, best, is_angle, x)
-        if inside:
-            return -1, nearest_action(command, actions), progress
-        if ctl[MODE] == CLASSICAL:
-            return -1, nearest_action(swing_up(ctl, s), actions), progress
-    return select(style, model, s, ex, ex2, act, val, n, actions, p, inv_range, is_angle,
-                  radius2, goal_u, progress, used, u, acc, w_state, w_act, w_rew)
+    ``ctl`` (see the module docstring; x (2D,) is scratch, ``mem`` the commands in flight,
+    at least ``ctl[DELAY]`` of them)."""
+    if ctl[MODE] == NONE:
+        return select(style, model, s, ex, ex2, act, val, n, actions, p, inv_range, is_angle,
+                      radius2, goal_u, progress, used, u, acc, w_state, w_act, w_rew)
+    dim = s.shape[0]
+    ahead = x[dim:]                       # the state the command will act on
+    predict(ctl, model, s, p, mem, w_state, w_act, w_rew, ahead)
+    inside, command = lqr(ctl, ahead, best, is_angle, x)
+    if inside:
+        j, action = -1, nearest_action(command, actions)
+    elif ctl[MODE] == CLASSICAL:
+        j, action = -1, nearest_action(swing_up(ctl, ahead), actions)
+    else:
+        j, action, progress = select(style, model, s, ex, ex2, act, val, n, actions, p,
+                                     inv_range, is_angle, radius2, goal_u, progress, used, u,
+                                     acc, w_state, w_act, w_rew)
+    remember(ctl, mem, action)
+    return j, action, progress
+
+
+@kernel
+def memory_width(ctl):
+    """The commands in flight the controllers of ``ctl`` (P, C) remember (at least 1)."""
+    width = 1
+    if ctl.shape[1] > DELAY:
+        for k in range(ctl.shape[0]):
+            width = max(width, int(ctl[k, DELAY]))
+    return width
 
 
 def no_control(count: int = 1) -> np.ndarray:

@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 from numba import prange
 
-from sapga_ros.evaluation.control import choose
+from sapga_ros.evaluation.control import choose, memory_width
 from sim_nodes.draws import (LATENCY, MISMATCH, ON, PUSHES, command, episode_key, observe, push,
                              start_episode)
 from sim_nodes.goal import goal_delta
@@ -51,7 +51,9 @@ def run_share(model, style, ex, ex2, act, val, lengths, first, stop, s0, p, inv_
     comes first) and every step it did not run is charged ``fail_charge``
     (``Problem.fail_charge``): a contact ending step t adds ``(n_step - t) * fail_charge``
     to the return, after the step's reward and bonus.  ``ctl[k]`` is policy k's
-    controller (``sapga_ros.evaluation.control``; one 0 column: none).
+    controller (``sapga_ros.evaluation.control``; one 0 column: none); a controller
+    designed for an actuation delay remembers the commands it issued in its lane's
+    ``memory`` (zero at the start of every episode).
 
     ``dstar_alt`` is delta* under an alternative reading of the goal box (alt_inv_scale,
     alt_fixed; measured only, never ending an episode); empty alt arrays: not measured.
@@ -69,9 +71,10 @@ def run_share(model, style, ex, ex2, act, val, lengths, first, stop, s0, p, inv_
     w_state = np.empty((dim, 1))
     w_act = np.zeros(1)
     w_rew = np.zeros(1)
-    x = np.empty(dim)
+    x = np.empty(2 * dim)
     pol = np.full(LANES, -1)                  # policy on each lane; -1: idle
     progress = np.zeros(LANES, dtype=np.int64)  # the selector's per-episode state
+    memory = np.zeros((LANES, memory_width(ctl)))  # the controller's commands in flight
     trace = tr_state.shape[0] > n_step
     alt = alt_inv_scale.shape[0] > 0
     disturbed = dist[ON] > 0.0
@@ -98,6 +101,7 @@ def run_share(model, style, ex, ex2, act, val, lengths, first, stop, s0, p, inv_
             if pol[lane] < 0 and nxt < stop:
                 pol[lane] = nxt
                 progress[lane] = 0
+                memory[lane, :] = 0.0
                 returns[nxt] = 0.0
                 steps[nxt] = 0
                 dstar[nxt] = goal_delta(s0, best, inv_scale, fixed, is_angle)
@@ -134,7 +138,7 @@ def run_share(model, style, ex, ex2, act, val, lengths, first, stop, s0, p, inv_
                 j, a[lane], progress[lane] = choose(
                     style, model, seen, ex[k], ex2[k], act[k], val[k], lengths[k],
                     actions, p, inv_range, is_angle, radius2, goal_u, progress[lane], used[k],
-                    u, acc, w_state, w_act, w_rew, ctl[k], best, x)
+                    u, acc, w_state, w_act, w_rew, ctl[k], best, x, memory[lane])
                 if disturbed:
                     a[lane] = command(history[lane], steps[k], a[lane], gain[lane])
                     push(steps[k], push_at[lane], push_dv[lane], push_on[lane], S[:, lane])

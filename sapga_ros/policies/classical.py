@@ -6,16 +6,21 @@ A classical policy file::
     {"format": "sapga-policy/1", "kind": "classical", "problem": "acrobot_hold",
      "state_names": [...], "actions": [...],
      "controller": {"K": [D numbers], "P": [D rows of D numbers], "c": number,
-                    "swing_up": {"law": "acrobot-energy", "gains": {...}}},
+                    "swing_up": {"law": "acrobot-energy", "gains": {...}},
+                    "delay": 1},
      "meta": {...}}
 
+``delay`` (optional, 0 when absent, written only when not 0) is the actuation delay in MDP
+steps the controller is designed for: it remembers the commands in flight and acts on the
+state predicted for when its command arrives (``sapga_ros.evaluation.control``).
+
 A hybrid (exemplars + catch) is an ordinary exemplar policy document with one more field,
-``"catch": {"K": [...], "P": [[...]], "c": number}``.  Both are parsed as hostile input:
-every number finite, every shape checked, the law and gain names known; the error names
-the field.  In memory both are ``ControlledPolicy``: an ``ExemplarPolicy`` (no exemplars for
-the classical kind) with its packed controller row ``control``
-(``sapga_ros.evaluation.control``), so the episode engine, the traced episode and the policy
-node run them like any exemplar policy.
+``"catch": {"K": [...], "P": [[...]], "c": number}`` (and ``delay``, as above).  Both are
+parsed as hostile input: every number finite, every shape checked, the law and gain names
+known; the error names the field.  In memory both are ``ControlledPolicy``: an
+``ExemplarPolicy`` (no exemplars for the classical kind) with its packed controller row
+``control`` (``sapga_ros.evaluation.control``), so the episode engine, the traced episode
+and the policy node run them like any exemplar policy.
 """
 from __future__ import annotations
 
@@ -29,6 +34,7 @@ from sapga_ros.errors import PolicyFileError
 from sapga_ros.policies.exemplar import FORMAT, ExemplarPolicy, document_problem
 from sapga_ros.policies.jsonfile import check_finite_tree, finite, json_safe
 from sapga_ros.policies import controller_row as C
+from sim_nodes.params import Param
 from sim_nodes.problem import Problem
 
 KIND = 'classical'
@@ -36,6 +42,10 @@ LAWS = {  # law -> (swing-up kind, gain names in order)
     'acrobot-energy': (C.SWING_ACROBOT, ('kp', 'kd', 'ke')),
     'cart-energy': (C.SWING_CART, ('ke', 'kx', 'kv')),
 }
+
+DELAY = Param('delay', 0, 'MDP steps of actuation delay the LQR is designed for: it acts on '
+              'the state predicted that far ahead from the commands in flight; 0: none',
+              low=0, high=C.MAX_DELAY)
 
 
 @dataclass(frozen=True)
@@ -65,6 +75,7 @@ class ControlledPolicy(ExemplarPolicy):
     c: float = 0.0                          # catch region x'Px <= c
     law: str = ''                           # swing-up law (classical)
     gains: dict | None = None               # swing-up gains (classical)
+    delay: int = 0                          # actuation delay designed for (MDP steps)
 
     @property
     def control(self) -> np.ndarray:
@@ -80,6 +91,7 @@ class ControlledPolicy(ExemplarPolicy):
             row[C.GAINS:C.GAINS + len(consts)] = consts
         row[C.HEAD:C.HEAD + dim] = self.K
         row[C.HEAD + dim:] = self.P.reshape(-1)
+        row[C.DELAY] = self.delay
         return row
 
     def controller_document(self) -> dict[str, Any]:
@@ -87,6 +99,8 @@ class ControlledPolicy(ExemplarPolicy):
                'c': float(self.c)}
         if self.kind == KIND:
             doc['swing_up'] = {'law': self.law, 'gains': dict(self.gains)}
+        if self.delay:
+            doc['delay'] = self.delay
         return doc
 
     def to_json(self) -> str:
@@ -123,7 +137,7 @@ def with_catch(policy: ExemplarPolicy, catch: ControlledPolicy) -> ControlledPol
     return ControlledPolicy(policy.problem, policy.states, policy.actions, policy.meta,
                             policy.style, policy.values,
                             policy.states2 if policy.states2.shape[1] else None,
-                            K=catch.K, P=catch.P, c=catch.c)
+                            K=catch.K, P=catch.P, c=catch.c, delay=catch.delay)
 
 
 def _vector(value: Any, length: int, where: str) -> np.ndarray:
@@ -147,7 +161,10 @@ def _controller(doc: Any, problem: Problem, where: str, classical: bool) -> dict
     c = finite(doc['c'], f'{where}.c')
     if c < 0:
         raise PolicyFileError(f'{where}.c: expected a number >= 0, got {c}')
-    out = {'K': K, 'P': P, 'c': c}
+    out = {'K': K, 'P': P, 'c': c, 'delay': doc.get('delay', 0)}
+    reason = DELAY.reason(out['delay'])
+    if reason:
+        raise PolicyFileError(f'{where}.{reason}')
     if classical:
         out.update(_swing_up(doc['swing_up'], f'{where}.swing_up'))
     return out

@@ -32,6 +32,7 @@ from sapga_ros import __version__
 from sapga_ros.errors import CheckpointError, ConfigError
 from sapga_ros.evaluation.evaluator import Evaluator, set_jobs
 from sapga_ros.evaluation.robust import check_stat, robust_evaluator
+from sapga_ros.policies.controller_row import MAX_DELAY
 from sapga_ros.policies.exemplar import ExemplarPolicy
 from sapga_ros.io.atomic import write_atomic
 from sapga_ros.optim.base import Optimizer
@@ -68,6 +69,9 @@ class TrainConfig:
     catch: str = param('none', 'lqr: every policy hands over to the problem\'s LQR inside '
                        'its catch region x\'Px <= c (the hybrid; SAP-GA only); none: not',
                        choices=('none', 'lqr'))
+    catch_delay: int = param(0, 'MDP steps of actuation delay the catch\'s LQR is designed '
+                             'for (--catch lqr): it acts on the state predicted that far ahead '
+                             'from the commands in flight; 0: none', low=0, high=MAX_DELAY)
     disturbance: str = param('none', 'disturbance profile of every evaluation (robust '
                              'fitness): a name in msg_configs/disturbances or a .yaml file; '
                              'none: the undisturbed model')
@@ -82,6 +86,8 @@ class TrainConfig:
     def __post_init__(self) -> None:
         check(self)
         check_stat(self.robust_stat)
+        if self.catch_delay and self.catch != 'lqr':
+            raise ConfigError('catch_delay: the delay of the LQR catch needs catch lqr')
 
     @property
     def disturbed(self) -> bool:
@@ -229,7 +235,7 @@ def _rounds(config: TrainConfig, initial: list[ExemplarPolicy] = (),
         from sapga_ros.evaluation.classical_design import classical_policy
         from sapga_ros.policies.classical import with_catch
         catch = with_catch(ExemplarPolicy(problem, np.zeros((0, problem.dim))),
-                           classical_policy(problem))
+                           classical_policy(problem, delay=config.catch_delay))
         evaluator.catch = catch.control
     opt, history = _start(config, problem, delta, list(initial))
     start = last_save = time.perf_counter()
