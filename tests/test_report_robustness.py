@@ -1,6 +1,9 @@
-"""The experiment report's robustness curves: each row's returned policies against each
-disturbance profile's size, with an interval over the seeds."""
+"""The experiment report of a hold set: the hold table and figures, and the robustness
+curves (each row's returned policies against each disturbance profile's size, with an
+interval over the seeds)."""
 import json
+
+import pytest
 
 from sapga_ros.evaluation.evaluator import Evaluator
 from sapga_ros.policies.runnable import policy_from_document
@@ -11,10 +14,30 @@ from sapga_ros.viz.report_robustness import CurveSettings
 from sim_nodes.goal import hold_measures
 
 
-def test_report_draws_each_rows_curves_from_its_returned_policies(tmp_path, capsys):
-    out = tmp_path / 'hold'
+@pytest.fixture(scope='module')
+def hold_dir(tmp_path_factory):
+    """Rows 1 (SAP-GA) and 5 (classical) of the hold set, 2 seeds, a tiny budget."""
+    out = tmp_path_factory.mktemp('report') / 'hold'
     run_experiments('hold', out, only=[1, 5], seeds=2, scale=0.0002, workers=1,
                     log=lambda _: None)
+    return out
+
+
+def test_report_has_the_hold_table_and_figures_of_the_runs(hold_dir):
+    out = hold_dir
+    report = write_report(out, with_figure5=False).read_text()
+    for e in (1, 5):
+        finals = [read_run(run_path(out, e, seed), seed)[1]['final'] for seed in (0, 1)]
+        holding = sum(f['hold_fraction'] >= 0.95 for f in finals)
+        row = next(line for line in report.split('\n') if line.startswith(f'| {e} | acrobot'))
+        assert f'| {holding}/2 |' in row, row
+    assert '## Hold' in report and '| 5 | acrobot_hold | classical | 1.000 ± 0.000 |' in report
+    for name in ('hold_fraction.png', 'hold_episodes.png'):
+        assert f']({name})' in report and (out / name).stat().st_size > 5000
+
+
+def test_report_draws_each_rows_curves_from_its_returned_policies(hold_dir, capsys):
+    out = hold_dir
     settings = CurveSettings(('push', 'latency'), (0.0, 4.0), 3)
     report = write_report(out, with_figure5=False, curves=settings).read_text()
     doc = json.loads((out / 'robustness.json').read_text())

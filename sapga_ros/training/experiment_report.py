@@ -185,20 +185,29 @@ def markdown_table(summaries: list[dict]) -> str:
                      f"| {f['delta_star_mean']:.4f} ± {f['delta_star_std']:.4f} "
                      f'| {returned_text(f)} '
                      f"| {s.get('timing', {}).get('steps_per_s_mean', math.nan) / 1e3:,.0f} k |")
-    held = [s for s in summaries if 'holding' in s['final']]
-    if held:
-        lines += ['', '| # | problem | method | hold fraction | 95 % interval | >= 0.95 | '
-                  '>= 0.9, no rail contact | first entry step | rail contacts |',
-                  '|---|---|---|---|---|---|---|---|---|']
-        for s in held:
-            f = s['final']
-            ci = f['hold_fraction_ci95']
-            ci = '-' if ci is None else f'[{ci[0]:.3f}, {ci[1]:.3f}]'
-            first = '-' if f['first_entry_mean'] is None else f"{f['first_entry_mean']:.0f}"
-            method = s['method'] + (' + LQR catch' if s.get('catch', 'none') != 'none' else '')
-            lines.append(f"| {s['id']} | {s['problem']} | {method} "
-                         f"| {f['hold_fraction_mean']:.3f} ± {f['hold_fraction_std']:.3f} "
-                         f"| {ci} | {f['holding']}/{f['runs']} "
-                         f"| {f['holding_clean']}/{f['runs']} | {first} "
-                         f"| {f['rail_contacts_mean']:.2f} |")
+    lines += hold_table(summaries)
     return '\n'.join(lines) + '\n'
+
+
+def hold_table(summaries: list[dict]) -> list[str]:
+    """The hold measures of the rows that have them, as Markdown lines (none: [])."""
+    held = [s for s in summaries if 'holding' in s['final']]
+    if not held:
+        return []
+    lines = ['', '| # | problem | method | hold fraction | 95 % interval | >= 0.95 | '
+             '>= 0.9, no rail contact | first entry step | rail contacts |',
+             '|---|---|---|---|---|---|---|---|---|']
+    for s in held:
+        f = s['final']
+        ci = f['hold_fraction_ci95']
+        ci = '-' if ci is None else f'[{ci[0]:.3f}, {ci[1]:.3f}]'
+        first = '-' if f['first_entry_mean'] is None else f"{f['first_entry_mean']:.0f}"
+        method = s['method'] + (f" [{s['variant']}]" if s.get('variant', 'paper') != 'paper'
+                                else '')
+        method += ' + LQR catch' if s.get('catch', 'none') != 'none' else ''
+        lines.append(f"| {s['id']} | {s['problem']} | {method} "
+                     f"| {f['hold_fraction_mean']:.3f} ± {f['hold_fraction_std']:.3f} "
+                     f"| {ci} | {f['holding']}/{f['runs']} "
+                     f"| {f['holding_clean']}/{f['runs']} | {first} "
+                     f"| {f['rail_contacts_mean']:.2f} |")
+    return lines

@@ -61,6 +61,19 @@ def _final(doc: Any, where: str, runs_max: int) -> dict:
         out['policy_rail_contacts_mean'] = schema.number(
             schema.field(f, 'policy_rail_contacts_mean', where),
             f'{where}.policy_rail_contacts_mean', low=0)
+    if 'holding' in f:                               # the hold task's measures
+        for key in ('holding', 'holding_clean'):
+            out[key] = schema.integer(schema.field(f, key, where), f'{where}.{key}', 0,
+                                      runs_max)
+        for key, high in (('hold_fraction_mean', 1), ('hold_fraction_std', 1),
+                          ('rail_contacts_mean', math.inf)):
+            out[key] = schema.number(schema.field(f, key, where), f'{where}.{key}', low=0,
+                                     high=high)
+        out['hold_fraction_ci95'] = _ci(f.get('hold_fraction_ci95'),
+                                        f'{where}.hold_fraction_ci95')
+        first = f.get('first_entry_mean')
+        out['first_entry_mean'] = None if first is None else schema.number(
+            first, f'{where}.first_entry_mean', low=0)
     return out
 
 

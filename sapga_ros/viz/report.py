@@ -18,7 +18,7 @@ from sapga_ros.evaluation.evaluator import Evaluator
 from sapga_ros.analysis.limit_file import delta_text, read_limit
 from sapga_ros.io.atomic import save_figure, write_atomic
 from sapga_ros.policies.runnable import policy_from_document
-from sapga_ros.training.experiment_report import count_text
+from sapga_ros.training.experiment_report import count_text, hold_table
 from sapga_ros.training.report_files import read_info, read_summary
 from sapga_ros.training.run_files import read_run, run_path
 
@@ -250,6 +250,13 @@ def write_report(out: Path, with_figure5: bool = True, curves=None) -> Path:
     titles = {'paper': 'Results', 'ablation': 'Ablation: SAP-GA variants', 'peer': 'Peers'}
     for group, rows in groups.items():
         lines += [f'## {titles.get(group, group)}', ''] + table(rows) + ['']
+    held = hold_table(summaries)
+    if held:
+        lines += ['## Hold', '', 'Each run\'s returned policy, its own episode: hold '
+                  'fraction (steps in S_δ from the first entry on / steps from it to the end; '
+                  'mean ± std, 95 % bootstrap interval), runs holding >= 0.95, runs holding '
+                  '>= 0.9 with no rail contact, first entry step (mean over the runs that '
+                  'entered), rail contacts (mean).'] + held + ['']
     if curves is not None:
         from sapga_ros.viz.report_robustness import robustness_section
         lines += ['## Robustness', ''] + robustness_section(out, summaries, curves)
@@ -260,6 +267,8 @@ def write_report(out: Path, with_figure5: bool = True, curves=None) -> Path:
     for path in plot_summaries(summaries, out):
         lines += [f'![{path.stem}]({path.name})', '']
     lines += trajectory_figures(out, summaries)
+    from sapga_ros.viz.hold_plot import hold_figures
+    lines += hold_figures(out, summaries)
     if with_figure5:
         lines += figure5(out)
     path = out / 'report.md'
