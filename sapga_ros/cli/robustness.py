@@ -12,11 +12,11 @@ steps); each policy runs ``--episodes`` held-out disturbed episodes at each size
 from __future__ import annotations
 
 import argparse
-import json
 import re
 from pathlib import Path
 
 from sapga_ros.cli.args import check_output_dir, episode_steps, nonneg_int
+from sapga_ros.io.jsonfile import write_json
 
 PROFILES = ('sensor', 'latency', 'mismatch', 'push', 'field')
 
@@ -70,7 +70,7 @@ def cmd_robustness(args: argparse.Namespace) -> int:
             print(f'{profile.name} {f}: success ' + ', '.join(
                 f"x{r['scale']:g} {r['success_rate']:.2f}" for r in rows), flush=True)
     out.mkdir(parents=True, exist_ok=True)
-    (out / 'robustness.json').write_text(json.dumps(results, indent=1), encoding='utf-8')
+    write_json(out / 'robustness.json', results, indent=1)
     _figures(results, profiles, args.policies, out)
     print(f'wrote {out}/robustness.json and {len(profiles)} figures')
     return 0

@@ -119,8 +119,8 @@ class RecorderNode(Node):
             path, split=p['split'], event_topic=self._roles['event'],
             chunk_size=p['chunk_size'], compression=p['compression'],
             metadata={'problem': self._problem.name, 'delta': repr(p['delta']),
-                      'topics': json.dumps(self._roles, sort_keys=True),
-                      'state_names': json.dumps(self._problem.state_names),
+                      'topics': json.dumps(self._roles, sort_keys=True, allow_nan=False),
+                      'state_names': json.dumps(self._problem.state_names, allow_nan=False),
                       'node': self.get_fully_qualified_name()})
         self._subs: dict[str, tuple[Any, str, QoSProfile]] = {}
         self.dropped: dict[str, DropCounter] = {}
