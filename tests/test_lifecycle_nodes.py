@@ -1,8 +1,9 @@
-"""The recorder as a managed (lifecycle) node over real DDS: ``managed:=true`` starts it
-unconfigured, and lifecycle_msgs/srv/ChangeState requests (what ``ros2 lifecycle set`` sends)
-take it through configure, activate, deactivate and cleanup; a configure that fails (a bad
-parameter, an output directory that cannot be made) is one error line and leaves it
-unconfigured and alive (sapga_ros/nodes/recorder_node.py)."""
+"""The recorder and the trainer as managed (lifecycle) nodes over real DDS: ``managed:=true``
+starts each unconfigured, and lifecycle_msgs/srv/ChangeState requests (what ``ros2 lifecycle
+set`` sends) take it through configure, activate, deactivate and cleanup; a configure that
+fails (a bad parameter, an output directory that cannot be made, a policy file that cannot be
+read) is one error line and leaves it unconfigured and alive
+(sapga_ros/nodes/recorder_node.py, trainer_node.py)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -18,7 +19,9 @@ from std_msgs.msg import Float64
 from std_srvs.srv import Trigger
 
 from ros_helpers import isolated_ros
+from sapga_ros.policies.exemplar import ExemplarPolicy
 from sapga_ros.recording.reader import decode_messages, read_recording
+from sim_nodes.problem import load_problem
 
 TOPIC = '/probe_data'
 
@@ -30,14 +33,16 @@ def ros(monkeypatch, tmp_path):
 
 class Manager(Node):
     """What a lifecycle manager (or ``ros2 lifecycle set``) uses: the node's lifecycle
-    services, its ready service, its parameters, and a publisher of the recorded topic."""
+    services, a service of its own (``ready`` or ``get_policy``), its parameters, and a
+    publisher of the recorded topic."""
 
-    def __init__(self, **kwargs) -> None:
+    def __init__(self, target: str = 'recorder_node', service: str = 'ready',
+                 **kwargs) -> None:
         super().__init__('manager', **kwargs)
-        self.change = self.create_client(ChangeState, '/recorder_node/change_state')
-        self.get = self.create_client(GetState, '/recorder_node/get_state')
-        self.ready = self.create_client(Trigger, '/recorder_node/ready')
-        self.params = self.create_client(SetParameters, '/recorder_node/set_parameters')
+        self.change = self.create_client(ChangeState, f'/{target}/change_state')
+        self.get = self.create_client(GetState, f'/{target}/get_state')
+        self.ready = self.create_client(Trigger, f'/{target}/{service}')
+        self.params = self.create_client(SetParameters, f'/{target}/set_parameters')
         self.pub = self.create_publisher(Float64, TOPIC, QoSProfile(
             depth=100, reliability=ReliabilityPolicy.RELIABLE))
 
@@ -128,3 +133,36 @@ def test_a_failing_configure_stays_unconfigured_and_can_be_retried(ros, tmp_path
     assert state(ros, m) == 'inactive' and (blocker / 'out' / 'good').is_dir()
     assert ros.stop(proc) == 0
     assert read_recording(blocker / 'out' / 'good').bag_metadata is not None
+
+
+def test_the_trainer_answers_only_while_active(ros, tmp_path):
+    """A managed trainer refuses get_policy until active; a configure with a policy file
+    that cannot be read fails with one line; with a readable one set, configure and
+    activate serve it; deactivate refuses again; cleanup leaves it unconfigured."""
+    problem = load_problem('acrobot')
+    good = tmp_path / 'policy.json'
+    ExemplarPolicy(problem, problem.initial_state[None, :], [2]).save(good)
+    missing = tmp_path / 'missing.json'
+    proc = ros.spawn('trainer_node', '--ros-args', '-p', 'managed:=true', '-p',
+                     f'policy_file:={missing}')
+    m = ros.start(Manager, target='trainer_node', service='get_policy')
+    assert state(ros, m) == 'unconfigured'
+    answer = ros.call(m.ready, Trigger.Request())
+    assert not answer.success and 'unconfigured' in answer.message
+    assert not transition(ros, m, Transition.TRANSITION_CONFIGURE)
+    assert state(ros, m) == 'unconfigured' and proc.poll() is None
+    lines = [ln for ln in log_of(ros, proc).splitlines() if 'configure failed' in ln]
+    assert len(lines) == 1 and str(missing) in lines[0], log_of(ros, proc)
+    assert set_string(ros, m, 'policy_file', str(good))
+    assert transition(ros, m, Transition.TRANSITION_CONFIGURE)
+    assert state(ros, m) == 'inactive'
+    assert not ros.call(m.ready, Trigger.Request()).success
+    assert transition(ros, m, Transition.TRANSITION_ACTIVATE)
+    answer = ros.call(m.ready, Trigger.Request())
+    assert answer.success and answer.message == good.read_text()
+    assert transition(ros, m, Transition.TRANSITION_DEACTIVATE)
+    answer = ros.call(m.ready, Trigger.Request())
+    assert not answer.success and 'inactive' in answer.message
+    assert transition(ros, m, Transition.TRANSITION_CLEANUP)
+    assert state(ros, m) == 'unconfigured' and proc.poll() is None
+    assert ros.stop(proc) == 0
