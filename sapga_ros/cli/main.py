@@ -28,7 +28,6 @@ wrong and exit with status 2; no traceback.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -42,6 +41,7 @@ from sapga_ros.cli.robustness import add_robustness_arguments, cmd_robustness
 from sapga_ros.cli.train import add_train_arguments, cmd_train
 from sapga_ros import package_version
 from sapga_ros.errors import SapgaError
+from sapga_ros.io.jsonfile import dumps
 from sapga_ros.policies.styles import STYLES
 from sapga_ros.launch.prefix import ensure_ament_prefix
 from sim_nodes.params import DELTA
@@ -128,7 +128,7 @@ def cmd_eval(args) -> int:
         return _eval_disturbed(args, policy, delta)
     ep = run_policy_episode(policy, delta, args.max_steps)
     if args.json:
-        print(json.dumps(ep.summary()))
+        print(dumps(ep.summary()))
     else:
         reached = 'reached' if ep.reached else 'did not reach'
         print(f'{policy.problem.name}: return {ep.ret:.6f}, delta* {ep.delta_star:.6f}, '
@@ -144,7 +144,7 @@ def _eval_disturbed(args, policy, delta: float) -> int:
     from sapga_ros.evaluation.robust import robustness
     out = robustness(policy, delta, args.disturbance, args.episodes, args.seed, args.max_steps)
     if args.json:
-        print(json.dumps(out))
+        print(dumps(out))
         return 0
     print(f"{policy.problem.name} under {out['disturbance']}, {out['episodes']} episodes: "
           f"success {out['success_rate']:.3f} ({out['success']}), delta* median "
@@ -169,7 +169,7 @@ def cmd_exemplars(args) -> int:
     counts = np.bincount(reported, minlength=len(policy))
     rows = exemplar_table(policy, counts, ep.used)
     if args.json:
-        print(json.dumps(rows))
+        print(dumps(rows))
     else:
         print(f'{policy.problem.name}, {policy.style} style')
         print('\n'.join(format_table(policy, rows)))
@@ -203,7 +203,7 @@ def cmd_bench(args) -> int:
     from sapga_ros.bench.batch import run_bench
     result = run_bench()
     if args.json:
-        print(json.dumps({k: v for k, v in result.items() if k != 'details'}))
+        print(dumps({k: v for k, v in result.items() if k != 'details'}))
         return 0
     for d in result['details']:
         print(f"{d['problem']:8s} batch: {d['steps_per_s_per_core'] / 1e6:6.3f} M steps/s per "
@@ -220,7 +220,7 @@ def _bench_training(args) -> int:
     from sapga_ros.bench.training import QL_ROWS, SAPGA_ROWS, run_training_bench
     d = run_training_bench()
     if args.json:
-        print(json.dumps(d))
+        print(dumps(d))
         return 0
     for problem, delta in SAPGA_ROWS:
         print(f'SAP-GA {problem:11s} delta {delta}: '
@@ -238,7 +238,7 @@ def _bench_styles(args) -> int:
     from sapga_ros.bench.batch import run_style_bench
     result = run_style_bench(list(STYLES) if args.style == 'all' else [args.style])
     if args.json:
-        print(json.dumps(result))
+        print(dumps(result))
         return 0
     for style, d in result.items():
         print(f"{style:18s} acrobot {d['acrobot_steps_per_s_per_core'] / 1e6:6.3f} M steps/s "

@@ -14,12 +14,12 @@ on stderr, exit status 2.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
 from sapga_ros.cli.args import check_output_file
 from sapga_ros.errors import McapError, SapgaError
+from sapga_ros.io.jsonfile import dumps
 
 EXIT_USAGE = 2
 
@@ -43,31 +43,32 @@ def add_bag_arguments(parser: argparse.ArgumentParser) -> None:
 
 def inspect_summary(path: str, plot: str | None = None, episode: int | None = None
                     ) -> dict:
-    """The summary of a recording (and its plot, if asked); McapError if unreadable."""
-    from sapga_ros.recording.inspect import fmt, pick_episode, summarize
-    from sapga_ros.recording.reader import read_recording
+    """The summary of a recording (and its plot, if asked); McapError if unreadable.  The
+    recording is streamed (``recording/inspect.py``): any number of messages."""
+    from sapga_ros.recording.inspect import Picker, fmt, inspect_path
 
     if plot:
         check_output_file(Path(plot), '--plot')
-    rec = read_recording(path)
+    picker = Picker(episode) if plot else None
     try:
-        summary, episodes, problem = summarize(rec)
+        summary, rec, problem = inspect_path(path, picker)
+    except McapError:
+        raise
     except Exception as exc:  # noqa: BLE001 - no file content may crash the CLI
         raise McapError(f'{path}: messages do not match their roles '
                         f'({type(exc).__name__}: {exc})'[:300]) from exc
-    if rec.error:
-        print(f'warning: {rec.error}; summarising the {len(rec.messages)} messages read',
-              file=sys.stderr)
+    if summary['error']:
+        print(f'warning: {summary["error"]}; summarising the {summary["message_count"]} '
+              'messages read', file=sys.stderr)
     if plot:
         from sapga_ros.viz.episode_plot import plot_episode
         if problem is None:
             raise McapError(f'{path}: cannot plot: {summary["problem_error"]}')
-        i = pick_episode(episodes, summary['episodes'], episode)
-        ep = summary['episodes'][i]
+        chosen, ep = picker.chosen()
         title = (f'{problem.name}: episode {fmt(ep["episode"], "d")}, {ep["end"]}, '
                  f'return {fmt(ep["return"], ".2f")}, delta* {fmt(ep["delta_star"], ".4f")}')
         try:
-            plot_episode(episodes[i], problem, plot, title, ep['goal_delta'])
+            plot_episode(chosen, problem, plot, title, ep['goal_delta'])
         except OSError as exc:
             raise McapError(f'{plot}: cannot write the plot ({exc.strerror})') from exc
         summary['plot'] = {'file': plot, 'episode': ep['episode']}
@@ -84,7 +85,7 @@ def run_inspect(path: str, json_out: bool = False, plot: str | None = None,
         print(f'sapga inspect: error: {exc}', file=sys.stderr)
         return EXIT_USAGE
     if json_out:
-        print(json.dumps(summary, allow_nan=False, default=str))
+        print(dumps(summary, default=str))
     else:
         print(format_summary(summary))
         if plot:

@@ -11,13 +11,16 @@ Reading is bounded (a checkpoint is input like any other): a regular file of at 
 bool array; the members' declared uncompressed sizes are checked before a byte is inflated
 (in all at most ``MAX_BYTES`` and ``MAX_RATIO`` times the file size: ``np.savez`` stores its
 members, so a zip bomb is refused unopened); each array's header must describe exactly the
-bytes that follow it (never an allocation its data cannot fill); the meta JSON must parse
-within Python's nesting limit.  Every refusal is a one-line ``CheckpointError``.
+bytes that follow it (never an allocation its data cannot fill); the meta JSON must be
+strict JSON within Python's nesting limit.  Every refusal is a one-line ``CheckpointError``.
+
+The meta JSON is strict: an inf or NaN of the run (the best value or delta* before any
+episode reached anything) is written tagged (``sapga_ros.io.jsonfile.tagged_dumps``) and
+reads back as the same float; a bare ``NaN`` or ``Infinity`` is refused, naming the field.
 """
 from __future__ import annotations
 
 import io
-import json
 import os
 import re
 import zipfile
@@ -29,6 +32,7 @@ import numpy as np
 from sapga_ros.errors import CheckpointError
 from sapga_ros.io.atomic import write_atomic
 from sapga_ros.io.bounded import open_regular
+from sapga_ros.io.jsonfile import strict_loads, tagged_dumps
 
 FORMAT = 'sapga-checkpoint/1'
 FILENAME = 'checkpoint.npz'
@@ -47,7 +51,7 @@ def checkpoint_file(directory: str | os.PathLike) -> Path:
 def save_checkpoint(directory: str | os.PathLike, meta: dict[str, Any],
                     arrays: dict[str, np.ndarray]) -> Path:
     """Write ``directory/checkpoint.npz`` atomically (temporary file + rename)."""
-    doc = json.dumps({'format': FORMAT, **meta}, allow_nan=True).encode()
+    doc = tagged_dumps({'format': FORMAT, **meta}).encode()
     return write_atomic(checkpoint_file(directory), lambda f: np.savez(
         f, meta=np.frombuffer(doc, dtype=np.uint8), **arrays))
 
@@ -145,11 +149,8 @@ def _meta(path: Path, raw: np.ndarray) -> dict[str, Any]:
     if raw.dtype != np.uint8 or raw.ndim != 1:
         raise CheckpointError(f'{path}: meta record of the wrong form ({raw.dtype}, '
                               f'{raw.ndim} dimensions)')
-    try:
-        meta = json.loads(raw.tobytes().decode())
-    except (UnicodeDecodeError, ValueError, RecursionError) as exc:
-        reason = 'nested too deeply' if isinstance(exc, RecursionError) else exc
-        raise CheckpointError(f'{path}: malformed meta record ({reason})'[:300]) from exc
+    meta = strict_loads(raw.tobytes(), f'{path}: meta record', CheckpointError, tagged=True,
+                        legacy=True)   # checkpoints of earlier versions: bare Infinity
     if not isinstance(meta, dict) or meta.get('format') != FORMAT:
         raise CheckpointError(f'{path}: not a {FORMAT} file')
     return meta

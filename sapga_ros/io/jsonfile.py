@@ -6,8 +6,14 @@ costs a bounded multiple of the file: a flat list of a million empty lists would
 take thirty times its bytes), refuses the non-standard constants ``NaN``, ``Infinity`` and
 ``-Infinity``, and turns every failure into one ``DataFileError`` line naming the file.
 
+``strict_loads`` is the one parser under both: a bare ``NaN`` or ``Infinity`` anywhere is
+refused with one line naming the field that holds it (``runs[3].best_value: bare NaN ...``).
+
 ``dumps`` writes strict JSON: a non-finite float becomes ``null`` (no bare ``NaN`` in any
-file); ``write_json`` writes it atomically (``sapga_ros.io.atomic``).
+file); ``write_json`` writes it atomically (``sapga_ros.io.atomic``).  A format that must
+keep inf apart from NaN (a checkpoint's counters) writes it tagged instead:
+``tagged_dumps`` writes ``{"$nonfinite": "inf"}`` (or ``"-inf"``, ``"nan"``) and
+``strict_loads(..., tagged=True)`` reads it back as the float.
 """
 from __future__ import annotations
 
@@ -15,7 +21,7 @@ import json
 import math
 import os
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 from sapga_ros.errors import DataFileError
 from sapga_ros.io.atomic import write_atomic
@@ -24,8 +30,62 @@ from sapga_ros.io.bounded import TooLarge, read_bounded
 MAX_VALUES = 1_000_000     # JSON values in one file, by default
 
 
-def _constant(name: str) -> Any:
-    raise ValueError(f'{name} is not JSON (a non-finite number)')
+TAG = '$nonfinite'
+_TAGGED = {'inf': math.inf, '-inf': -math.inf, 'nan': math.nan}
+
+
+class _Bare:
+    """A bare non-standard constant met while parsing (refused once the field is known)."""
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+
+
+def bare_field(doc: Any) -> tuple[str, str] | None:
+    """(field path, constant) of the first ``_Bare`` in ``doc`` (walked without recursion)."""
+    stack: list[tuple[str, Any]] = [('', doc)]
+    while stack:
+        where, value = stack.pop()
+        if isinstance(value, _Bare):
+            return where or '(document)', value.name
+        if isinstance(value, dict):
+            stack.extend((f'{where}.{k}' if where else str(k), v)
+                         for k, v in reversed(value.items()))
+        elif isinstance(value, list):
+            stack.extend((f'{where}[{i}]', v) for i, v in reversed(list(enumerate(value))))
+    return None
+
+
+def _untag(obj: dict) -> Any:
+    if len(obj) == 1 and obj.get(TAG) in _TAGGED:
+        return _TAGGED[obj[TAG]]
+    return obj
+
+
+def strict_loads(data: bytes | str, where: str, error: type[Exception] = DataFileError,
+                 tagged: bool = False, legacy: bool = False) -> Any:
+    """The JSON document of ``data``; ``error`` (one line naming ``where`` and the field) if
+    it holds a bare NaN/Infinity or is not JSON.  ``tagged``: read tagged non-finite floats;
+    ``legacy``: also read bare NaN/Infinity as floats (what earlier versions of a format
+    wrote; the caller checks every field)."""
+    seen: list[str] = []
+
+    def bare(name: str) -> Any:
+        if legacy:
+            return float(name)
+        seen.append(name)
+        return _Bare(name)
+    try:
+        doc = json.loads(data, parse_constant=bare, object_hook=_untag if tagged else None)
+    except RecursionError:
+        raise error(f'{where}: nested too deeply') from None
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise error(f'{where}: not valid JSON ({str(exc)[:100]})') from None
+    if seen:
+        path, name = bare_field(doc) or ('(a key)', seen[0])
+        raise error(f'{where}: not valid JSON (field {path[:100]}: bare {name}, a '
+                    'non-finite number)')
+    return doc
 
 
 def value_count(data: bytes) -> int:
@@ -37,12 +97,7 @@ def parse_json(data: bytes, where: str, max_values: int = MAX_VALUES) -> Any:
     """The strict JSON document of ``data`` (see the module doc); DataFileError if not."""
     if value_count(data) > max_values:
         raise DataFileError(f'{where}: more than {max_values} JSON values')
-    try:
-        return json.loads(data, parse_constant=_constant)
-    except RecursionError:
-        raise DataFileError(f'{where}: nested too deeply') from None
-    except (ValueError, UnicodeDecodeError) as exc:
-        raise DataFileError(f'{where}: not valid JSON ({str(exc)[:100]})') from None
+    return strict_loads(data, where)
 
 
 def read_json(path: str | os.PathLike, max_bytes: int, max_values: int = MAX_VALUES) -> Any:
@@ -56,20 +111,36 @@ def read_json(path: str | os.PathLike, max_bytes: int, max_values: int = MAX_VAL
     return parse_json(data, str(path), max_values)
 
 
+def _map_nonfinite(obj: Any, change: Callable[[float], Any]) -> Any:
+    """``obj`` with every non-finite float (nested in dicts, lists, tuples) as ``change(x)``."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else change(obj)
+    if isinstance(obj, dict):
+        return {k: _map_nonfinite(v, change) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_map_nonfinite(v, change) for v in obj]
+    return obj
+
+
 def finite(obj: Any) -> Any:
     """``obj`` with every non-finite float (nested in dicts, lists, tuples) as None."""
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    if isinstance(obj, dict):
-        return {k: finite(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [finite(v) for v in obj]
-    return obj
+    return _map_nonfinite(obj, lambda x: None)
 
 
 def dumps(obj: Any, **kwargs: Any) -> str:
     """Strict JSON text of ``obj``: non-finite floats written as null."""
     return json.dumps(finite(obj), allow_nan=False, **kwargs)
+
+
+def tag_nonfinite(obj: Any) -> Any:
+    """``obj`` with every non-finite float as ``{TAG: 'inf' | '-inf' | 'nan'}``."""
+    return _map_nonfinite(obj, lambda x: {TAG: 'nan' if math.isnan(x) else
+                                          ('inf' if x > 0 else '-inf')})
+
+
+def tagged_dumps(obj: Any, **kwargs: Any) -> str:
+    """Strict JSON text of ``obj``, its non-finite floats tagged (see the module doc)."""
+    return json.dumps(tag_nonfinite(obj), allow_nan=False, **kwargs)
 
 
 def write_json(path: str | os.PathLike, obj: Any, **kwargs: Any) -> Path:

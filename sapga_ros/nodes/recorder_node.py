@@ -13,13 +13,24 @@ every recorded topic has a publisher (the hand-use ``command`` topic may have no
 of its publishers is matched; ``message`` names what is missing.  A simulator with
 ``wait_for_recorder`` (and ``sapga launch``) starts the run only then, so nothing is lost.
 
-Parameters (all read-only; ``recorder_params.py`` declares them, ``recorder_node --help``
-prints them with their ranges; msg_configs/params/recorder_node.yaml lists them):
+A managed (lifecycle) node: with ``managed`` false (the default) it configures and activates
+itself at start, as a plain node; with ``managed`` true it starts unconfigured and waits for
+``ros2 lifecycle set /recorder_node configure`` (or a lifecycle manager): *configure* checks
+the parameters and makes the bag directory (a failure is one error line and leaves the node
+unconfigured), *activate* subscribes and records, *deactivate* unsubscribes and writes what
+is buffered (the bag stays open: activate again to go on), *cleanup* and *shutdown* finish
+the bag.  The other parameters can then be set while it is unconfigured; each configure
+reads them.
+
+Parameters (read-only unless ``managed``; ``recorder_params.py`` declares them,
+``recorder_node --help`` prints them with their ranges; msg_configs/params/recorder_node.yaml
+lists them):
 
 ==============  ==========  =================================================================
 name            default     meaning
 ==============  ==========  =================================================================
 problem         acrobot     msg_configs/<problem>.yaml: topic names, QoS, state layout
+managed         false       wait for lifecycle transitions instead of recording at once
 output_dir      recordings  directory the bag directory is made in (created if missing)
 bag             ''          the bag directory's name; '' = ``<problem>_<UTC time>``.  An
                             existing directory is never overwritten
@@ -50,8 +61,8 @@ status 1.  Messages that
 never reached the recorder (its queue overflowed: ``queue_depth``, or the network lost them)
 are counted per topic from the publishers' sequence numbers, with a throttled warning and a
 total in the final line (``sim_nodes/ros/dropped.py``).  (Over 300 lines: the node's
-subscriptions, readiness service and the write-failure path that must stay next to them; the
-bag itself is ``sapga_ros.recording``.)
+subscriptions, readiness service, lifecycle transitions and the write-failure path that must
+stay next to them; the bag itself is ``sapga_ros.recording``.)
 """
 from __future__ import annotations
 
@@ -61,11 +72,12 @@ import json
 import signal
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 from rclpy.executors import SingleThreadedExecutor
-from rclpy.node import Node
+from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile
 from rclpy.signals import SignalHandlerOptions
@@ -85,7 +97,7 @@ from sim_nodes.ros.common import THROTTLE_S, run_node, topic_names
 from sim_nodes.ros.diagnostics import ERROR, OK, WARN, NodeDiagnostics, Report
 from sim_nodes.ros.dropped import DropCounter
 from sim_nodes.ros.runner import EXIT_FAILED
-from sim_nodes.ros.params import declare
+from sim_nodes.ros.params import check, declare
 
 NODE_NAME = 'recorder_node'  # its readiness service: recorder_node/ready
 GRAPH_PERIOD_S = 1.0        # [s] between looks at the graph (new publishers, their QoS)
@@ -100,17 +112,43 @@ def message_class(type_name: str) -> Any:
         raise SapgaError(f'message type {type_name!r} is not installed') from exc
 
 
-class RecorderNode(Node):
+class RecorderNode(LifecycleNode):
     """Raw subscriptions -> ``RecordingSession`` (one bag, split per run or per episode)."""
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
-        p = declare(self, PARAMETERS[:1])
+        p = declare(self, PARAMETERS[:2])
         self._problem = load_problem(p['problem'])
-        p.update(declare(self, PARAMETERS[1:], self._problem))
+        self.managed = bool(p['managed'])
+        rest = PARAMETERS[2:] if not self.managed else tuple(
+            replace(q, read_only=False) for q in PARAMETERS[2:])    # set while unconfigured
+        p.update(declare(self, rest, self._problem))
         self._roles = {role: self._resolve(name)
                        for role, name in topic_names(self._problem).items() if role in ROLE_TYPES}
+        self._session: RecordingSession | None = None
+        self._finished: tuple[Any, int] = (None, 0)    # the last bag finished: path, count
+        self._subs: dict[str, tuple[Any, str, QoSProfile]] = {}
+        self.dropped: dict[str, DropCounter] = {}
+        self._pending: dict[str, str | None] = {}
+        self._active_timers: list[Any] = []
+        self.active = False
+        self.write_errors = 0
+        self.failed = False         # a write failed: the bag is incomplete, exit status 1
+        self._ready_srv = self.create_service(Trigger, '~/ready', self._on_ready)
+        self.diagnostics = NodeDiagnostics(self, 'recorder', self._problem.name, self._report)
+        if not self.managed:
+            self._configure(p)          # a bad parameter: one line and exit 2, as any node
+            self.trigger_configure()
+            self.trigger_activate()
+        else:
+            self.get_logger().info('managed: unconfigured, waiting for the configure '
+                                   'transition')
+
+    def _configure(self, p: dict[str, Any]) -> None:
+        """Make the bag (SapgaError if a parameter or the output directory is refused)."""
         self._depth = p['queue_depth']
+        self._split = p['split']
+        self._flush_period = p['flush_period']
         wanted = self._wanted_topics()
         name = p['bag'] or f'{self._problem.name}_{utc_stamp()}'
         path = free_bag_path(p['output_dir'], name) if not p['bag'] else \
@@ -119,27 +157,97 @@ class RecorderNode(Node):
             path, split=p['split'], event_topic=self._roles['event'],
             chunk_size=p['chunk_size'], compression=p['compression'],
             metadata={'problem': self._problem.name, 'delta': repr(p['delta']),
-                      'topics': json.dumps(self._roles, sort_keys=True),
-                      'state_names': json.dumps(self._problem.state_names),
+                      'topics': json.dumps(self._roles, sort_keys=True, allow_nan=False),
+                      'state_names': json.dumps(self._problem.state_names, allow_nan=False),
                       'node': self.get_fully_qualified_name()})
-        self._subs: dict[str, tuple[Any, str, QoSProfile]] = {}
-        self.dropped: dict[str, DropCounter] = {}
-        self._pending: dict[str, str | None] = {}
-        self.write_errors = 0
         # the event topic first: of messages ready together, the executor takes it first, so
         # an episode's first messages land in its own file (split 'episode')
-        for topic, type_name in sorted(wanted.items(),
-                                       key=lambda kv: kv[0] != self._roles['event']):
-            self._pending[topic] = type_name
+        self._pending = dict(sorted(wanted.items(),
+                                    key=lambda kv: kv[0] != self._roles['event']))
+
+    # lifecycle --------------------------------------------------------------------------
+
+    def _settings(self) -> dict[str, Any]:
+        """The parameters as set now, each checked (SapgaError naming the first refused)."""
+        values = {q.name: self.get_parameter(q.name).value for q in PARAMETERS[2:]}
+        for name, value in values.items():
+            reason = check(PARAMETERS, name, value) if value is not None else None
+            if reason:
+                raise SapgaError(reason)
+        return values
+
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        if self._session is None:
+            try:
+                self._configure(self._settings())
+            except SapgaError as exc:
+                self.get_logger().error(f'configure failed, still unconfigured: '
+                                        f'{" ".join(str(exc).split())}'[:500])
+                return TransitionCallbackReturn.FAILURE
+            self.get_logger().info(f'configured: bag {self._session.path}')
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.active = True
         self._check_graph()
-        self._graph_timer = self.create_timer(GRAPH_PERIOD_S, self._check_graph)
-        self.failed = False         # a write failed: the bag is incomplete, exit status 1
-        if p['flush_period'] > 0:
-            self._flusher = self.create_timer(p['flush_period'], self._flush)
-        self._ready_srv = self.create_service(Trigger, '~/ready', self._on_ready)
-        self.diagnostics = NodeDiagnostics(self, 'recorder', self._problem.name, self._report)
-        self.get_logger().info(f'recording {", ".join(wanted)} to {self._session.path} '
-                               f'(split per {p["split"]})')
+        self._active_timers = [self.create_timer(GRAPH_PERIOD_S, self._check_graph)]
+        if self._flush_period > 0:
+            self._active_timers.append(self.create_timer(self._flush_period, self._flush))
+        self.get_logger().info(f'recording {", ".join([*self._subs, *self._pending])} to '
+                               f'{self._session.path} (split per {self._split})')
+        return super().on_activate(state)
+
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._stop()
+        self.get_logger().info(f'paused: {self.message_count} messages in {self.bag_path}')
+        return super().on_deactivate(state)
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._finish()
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._finish()
+        return TransitionCallbackReturn.SUCCESS
+
+    def _stop(self) -> None:
+        """Unsubscribe (the topics wait in ``_pending`` for the next activate); flush."""
+        self.active = False
+        for timer in self._active_timers:
+            self.destroy_timer(timer)
+        self._active_timers = []
+        for topic, (sub, type_name, _) in list(self._subs.items()):
+            self.destroy_subscription(sub)
+            self._pending[topic] = type_name
+        self._subs.clear()
+        if self._session is not None:
+            self._flush()
+
+    def _finish(self) -> None:
+        """Stop, then finish the bag (summary, footer, metadata.yaml) and say what it holds."""
+        if self.active:
+            self._stop()
+        s, self._session = self._session, None
+        if s is None:
+            return
+        self._finished = (s.path, s.message_count)
+        line = (f'wrote {s.path}: {s.message_count} messages in '
+                f'{len(s.bag.metadata.files)} storage file(s)')
+        try:
+            s.close()
+        except SapgaError as exc:
+            self.failed = True
+            line = f'error: {exc}'
+        if self.write_errors:
+            line += f'; {self.write_errors} writes failed'
+        lost = sum(d.count for d in self.dropped.values())
+        if lost:
+            line += f'; {lost} messages were dropped before they reached the recorder'
+        if self.context.ok():
+            log = self.get_logger()
+            (log.error if self.failed else log.info)(line)
+        else:   # after a signal the context is down and rosout is gone
+            print(f'[recorder] {line}', file=sys.stderr, flush=True)
 
     # names ------------------------------------------------------------------------------
 
@@ -227,10 +335,13 @@ class RecorderNode(Node):
 
     def _recorded(self, topic: str) -> bool:
         """Whether the bag has the topic (its type and QoS are then fixed)."""
-        return topic in self._session.bag.metadata.topics
+        return self._session is not None and topic in self._session.bag.metadata.topics
 
     def missing(self) -> list[str]:
         """What the recorder lacks to hear every publisher of every recorded topic."""
+        if not self.active:
+            return ['the activate transition (managed: the node is '
+                    f'{"configured" if self._session else "unconfigured"})']
         lacks = [f'{t} (type unknown: no publisher yet)' for t in self._pending]
         optional = {self._roles.get(role) for role in OPTIONAL_ROLES}
         for topic, (sub, _, _) in self._subs.items():
@@ -244,7 +355,7 @@ class RecorderNode(Node):
                   ) -> Trigger.Response:
         lacks = self.missing()
         response.success = not lacks
-        response.message = (f'recording {len(self._subs)} topics to {self._session.path}'
+        response.message = (f'recording {len(self._subs)} topics to {self.bag_path}'
                             if not lacks else 'waiting for ' + '; '.join(lacks))
         return response
 
@@ -259,7 +370,7 @@ class RecorderNode(Node):
         else:
             level, message = OK, f'recording {len(self._subs)} topics'
         return level, message[:300], {
-            'bag': str(self._session.path), 'messages': self.message_count,
+            'bag': str(self.bag_path or ''), 'messages': self.message_count,
             'topics': len(self._subs), 'dropped': dropped, 'write_errors': self.write_errors,
             'ready': not lacks}
 
@@ -267,15 +378,18 @@ class RecorderNode(Node):
 
     @property
     def message_count(self) -> int:
-        """Messages recorded so far."""
-        return self._session.message_count
+        """Messages recorded so far (in the bag being written, else the last one finished)."""
+        return self._session.message_count if self._session is not None else self._finished[1]
 
     @property
     def bag_path(self) -> Any:
-        return self._session.path
+        """The bag being written, else the last one finished (None before any)."""
+        return self._session.path if self._session is not None else self._finished[0]
 
     def _on_message(self, topic: str, type_name: str, data: bytes,
                     msg_info: dict[str, Any]) -> None:
+        if self._session is None or not self.active:
+            return
         self.dropped[topic].seen(msg_info)
         receive_ns = int(msg_info.get('received_timestamp') or 0) or time.time_ns()
         source_ns = int(msg_info.get('source_timestamp') or 0)
@@ -310,26 +424,8 @@ class RecorderNode(Node):
     def destroy_node(self) -> None:
         """Finish the bag (summary, footer, metadata.yaml), then destroy the node."""
         try:
-            s = self._session
-            line = (f'wrote {s.path}: {s.message_count} messages in '
-                    f'{len(s.bag.metadata.files)} storage file(s)')
-            try:
-                s.close()
-            except SapgaError as exc:
-                self.failed = True
-                line = f'error: {exc}'
-            if self.write_errors:
-                line += f'; {self.write_errors} writes failed'
-            lost = sum(d.count for d in self.dropped.values())
-            if lost:
-                line += f'; {lost} messages were dropped before they reached the recorder'
-            if self.context.ok():
-                log = self.get_logger()
-                (log.error if self.failed else log.info)(line)
-            else:   # after a signal the context is down and rosout is gone
-                print(f'[recorder] {line}', file=sys.stderr, flush=True)
-        except AttributeError:
-            pass        # the constructor failed before the session existed
+            if getattr(self, '_session', None) is not None:
+                self._finish()
         finally:
             super().destroy_node()
 

@@ -1,6 +1,7 @@
 """The recorder node's parameters: one table for their declaration with ranges, their checks
-and ``recorder_node --help`` (``sim_nodes/params.py``).  All are read-only: restart the
-recorder to change one.  The recorder node's docstring explains each.
+and ``recorder_node --help`` (``sim_nodes/params.py``).  All are read-only (restart the
+recorder to change one) but for a ``managed`` recorder, whose parameters after the first two
+are read at each configure.  The recorder node's docstring explains each.
 """
 from __future__ import annotations
 
@@ -13,6 +14,8 @@ from sim_nodes.params import DELTA, Param
 
 PARAMETERS = (
     Param('problem', 'acrobot', 'msg_configs/<problem>.yaml: topics, QoS, state layout'),
+    Param('managed', False, 'wait for lifecycle transitions (configure, activate, ...) '
+          'instead of recording at once'),
     Param('output_dir', 'recordings', 'directory the bag directory is made in (created if '
           'missing)'),
     Param('bag', '', "name of the bag directory ('' = <problem>_<UTC time>); never reused"),

@@ -38,6 +38,14 @@ requests is answered in full: a ``stop`` waiting for its round holds no other re
 ``diagnostics_period`` and at once when the state changes.  A failed run (one line in the
 message and the log) leaves the node ready for the next.
 
+A managed (lifecycle) node: with ``managed`` false (the default) it configures and activates
+itself at start, as above; with ``managed`` true it starts unconfigured and its services
+refuse (``success`` false, naming the state) until it is active: *configure* checks the run
+parameters and loads ``policy_file`` (a failure is one error line and leaves the node
+unconfigured), *activate* answers the services (and starts a run with ``train_on_start``),
+*deactivate* stops a run as ``stop`` does and refuses the services again, *cleanup* forgets
+the served policy, *shutdown* stops a run.
+
 Shutdown (Ctrl-C, SIGTERM) stops a run as ``stop`` does and still writes the best policy so
 far and the checkpoint.  (Over 300 lines: the node's services, parameter callbacks and run
 supervision in one place; the run itself, its status and its parameters are
@@ -55,7 +63,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
-from rclpy.node import Node
+from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile
 from std_srvs.srv import Trigger
@@ -90,14 +98,16 @@ class Served:
     reason: str = ''
 
 
-class TrainerNode(Node):
+class TrainerNode(LifecycleNode):
     """Trains in a background thread; reports, saves and serves the best policy."""
 
     def __init__(self, node_name: str = 'trainer_node', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
-        name = declare(self, PARAMETERS[:1])['problem']
-        self.problem: Problem = load_problem(name)
-        values = declare(self, PARAMETERS[1:], self.problem)
+        first = declare(self, PARAMETERS[:2])
+        self.problem: Problem = load_problem(first['problem'])
+        self.managed = bool(first['managed'])
+        self.active = False
+        values = declare(self, PARAMETERS[2:], self.problem)
         reason = memory_problem(values['n_pop'], values['n_child'], values['l_max'])
         if reason:
             raise ConfigError(f'{self.get_name()}: {reason}')
@@ -112,7 +122,7 @@ class TrainerNode(Node):
                                  self.get_parameter('seed').value)
         self._out = ''                  # the policy file of the current or last run
         policy_file = self.get_parameter('policy_file').value
-        if policy_file:
+        if policy_file and not self.managed:
             try:
                 self._serve_file(policy_file)
             except SapgaError as exc:        # keep running, serving nothing, saying why
@@ -135,12 +145,72 @@ class TrainerNode(Node):
                                              self._publish_diagnostics, clock=steady_clock())
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
+        if self.managed:
+            self.get_logger().info(f'{self.problem.name} trainer, managed: unconfigured, '
+                                   'waiting for the configure transition')
+            return
+        message = self._serve_requests()
+        if message:
+            raise ConfigError(f'{self.get_name()}: cannot train: {message}')
+        self.trigger_configure()
+        self.trigger_activate()
+
+    def _serve_requests(self) -> str:
+        """Answer the services from now on; start a run with ``train_on_start``.  Why that
+        run could not start ('' if it did, or none was asked for)."""
+        self.active = True
         self.get_logger().info(f'{self.problem.name} trainer: get_policy, train and stop '
                                'ready')
-        if self.get_parameter('train_on_start').value:
-            ok, message = self.start_training()
-            if not ok:
-                raise ConfigError(f'{self.get_name()}: cannot train: {message}')
+        if not self.get_parameter('train_on_start').value:
+            return ''
+        ok, message = self.start_training()
+        self.active = ok
+        return '' if ok else message
+
+    # lifecycle (managed) --------------------------------------------------------------------
+
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        if self.managed:
+            try:
+                self.train_config()
+                policy_file = self.get_parameter('policy_file').value
+                if policy_file:
+                    self._serve_file(policy_file)
+            except (SapgaError, ValueError) as exc:
+                self.get_logger().error(f'configure failed, still unconfigured: '
+                                        f'{" ".join(str(exc).split())}'[:500])
+                return TransitionCallbackReturn.FAILURE
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        if self.managed and (message := self._serve_requests()):
+            self.get_logger().error(f'activate failed: cannot train: {message}')
+            return TransitionCallbackReturn.FAILURE
+        return super().on_activate(state)
+
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.active = False
+        if not self.stop_training():
+            self._say('error', f'training did not stop within {JOIN_TIMEOUT_S} s')
+        return super().on_deactivate(state)
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._served = Served(None, '', 'no policy yet: the node was cleaned up')
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.active = False
+        self.stop_training()
+        return TransitionCallbackReturn.SUCCESS
+
+    def _refused(self, response: Trigger.Response) -> Trigger.Response | None:
+        """The answer of a service while the node is not active (None when it is)."""
+        if self.active:
+            return None
+        label = self._state_machine.current_state[1]
+        response.success, response.message = False, (f'the trainer is {label}: activate it '
+                                                     'first (managed)')
+        return response
 
     # configuration --------------------------------------------------------------------------
 
@@ -187,6 +257,8 @@ class TrainerNode(Node):
 
     def _on_get_policy(self, request: Trigger.Request, response: Trigger.Response
                        ) -> Trigger.Response:
+        if refused := self._refused(response):
+            return refused
         served = self._served   # one read: the training thread may replace it
         if served.policy is None:
             response.success, response.message = False, served.reason
@@ -196,11 +268,15 @@ class TrainerNode(Node):
 
     def _on_train(self, request: Trigger.Request, response: Trigger.Response
                   ) -> Trigger.Response:
+        if refused := self._refused(response):
+            return refused
         response.success, response.message = self.start_training()
         return response
 
     def _on_stop(self, request: Trigger.Request, response: Trigger.Response
                  ) -> Trigger.Response:
+        if refused := self._refused(response):
+            return refused
         with self._start_lock:      # no run starts before this one's stop is answered
             return self._stop(response)
 

@@ -4,8 +4,9 @@ Every parameter of ``TrainConfig``, ``SapgaParams``, ``QlParams``, ``CmaesParams
 ``NodeSettings`` (``sim_nodes.params``) is a parameter of the same name, default, range and
 description;
 ``delta`` is declared as the problem's ``episode.delta`` unless given.  Written here are only
-the node's own two: ``problem`` (read-only) and ``checkpoint`` ('': ``<out without
-suffix>.ckpt`` beside ``out``; none without ``out``).  A change applies to the next run.
+the node's own three: ``problem`` (read-only), ``managed`` (read-only: wait for lifecycle
+transitions) and ``checkpoint`` ('': ``<out without suffix>.ckpt`` beside ``out``; none
+without ``out``).  A change applies to the next run.
 """
 from __future__ import annotations
 
@@ -37,10 +38,12 @@ class NodeSettings:
 
 
 PROBLEM = Param('problem', 'acrobot', 'msg_configs/<problem>.yaml', read_only=True)
+MANAGED = Param('managed', False, 'wait for lifecycle transitions (configure, activate, ...) '
+                'instead of serving at once', read_only=True)
 CHECKPOINT = Param('checkpoint', '', 'checkpoint directory; empty: <out without suffix>.ckpt '
                    'beside out (none without out)')
 SOURCES = (TrainConfig, SapgaParams, QlParams, CmaesParams, NodeSettings)
-PARAMETERS = (PROBLEM, *(p for cls in SOURCES for p in declared(cls)), CHECKPOINT)
+PARAMETERS = (PROBLEM, MANAGED, *(p for cls in SOURCES for p in declared(cls)), CHECKPOINT)
 
 
 def check_setting(name: str, value: Any) -> str | None:

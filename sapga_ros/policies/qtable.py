@@ -143,8 +143,8 @@ class QTable:
                'actions': list(pr.actions), 'state_indices': list(pr.ql_state_indices),
                'tiles_per_dim': pr.ql_tiles_per_dim, 'meta': json_safe(self.meta)}
         head = json.dumps(doc, indent=1, allow_nan=False)[:-2]
-        rows = ',\n  '.join(f'"{c}": ' + json.dumps([float(v) for v in self.q[c]])
-                            for c in cells)
+        row = lambda c: json.dumps([float(v) for v in self.q[c]], allow_nan=False)  # noqa: E731
+        rows = ',\n  '.join(f'"{c}": ' + row(c) for c in cells)
         return head + ',\n "q": {\n  ' + rows + '\n }\n}\n'
 
     def save(self, path) -> Path:

@@ -23,7 +23,8 @@ import zlib
 from mcap.records import Channel, Chunk, McapRecord, Message, Metadata, Schema
 from mcap.stream_reader import breakup_chunk
 
-from sapga_ros.errors import McapError
+from sapga_ros.errors import DataFileError, McapError
+from sapga_ros.io.jsonfile import strict_loads
 
 MAX_CHUNK_BYTES = 64 << 20      # rosbag2's largest preset chunk is 4 MiB
 MAX_CHUNK_SIZE = 16 << 20       # [bytes] the largest chunk_size a writer accepts
@@ -43,7 +44,7 @@ def channel_record(channel: Channel, schema: Schema) -> dict[str, str]:
     """The ``sapga_channel`` Metadata record of a channel and its schema."""
     return {'id': str(channel.id), 'topic': channel.topic,
             'message_encoding': channel.message_encoding,
-            'metadata': json.dumps(dict(channel.metadata), sort_keys=True),
+            'metadata': json.dumps(dict(channel.metadata), sort_keys=True, allow_nan=False),
             'schema_id': str(schema.id), 'schema_name': schema.name,
             'schema_encoding': schema.encoding, 'schema_data': schema.data.decode('utf-8')}
 
@@ -52,13 +53,13 @@ def channel_from(record: Metadata) -> tuple[Channel, Schema] | None:
     """The channel and schema of a ``sapga_channel`` record (None if it is not one)."""
     m = record.metadata
     try:
-        meta = json.loads(m['metadata'])
+        meta = strict_loads(m['metadata'], 'sapga_channel metadata')
         schema = Schema(id=int(m['schema_id']), name=m['schema_name'],
                         encoding=m['schema_encoding'], data=m['schema_data'].encode('utf-8'))
         return (Channel(id=int(m['id']), topic=m['topic'],
                         message_encoding=m['message_encoding'], schema_id=schema.id,
                         metadata={str(k): str(v) for k, v in meta.items()}), schema)
-    except (KeyError, ValueError, TypeError, AttributeError):
+    except (KeyError, ValueError, TypeError, AttributeError, DataFileError):
         return None
 
 

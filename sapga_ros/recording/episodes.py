@@ -11,7 +11,6 @@ from ``command_stamped`` (each names the state it answers: its stamp) and from t
 """
 from __future__ import annotations
 
-import json
 import math
 from collections import Counter
 from dataclasses import dataclass, field
@@ -19,9 +18,10 @@ from typing import Any
 
 import numpy as np
 
-from sapga_ros.recording.events import (DEFAULT_ROLE_TOPICS, EPISODE_END_EVENTS,
-                                        MAX_EVENT_CHARS, ROLE_TYPES, event_episode, parse_event)
-from sapga_ros.recording.reader import DecodedMessage, Recording, schema_type
+from sapga_ros.errors import DataFileError
+from sapga_ros.io.jsonfile import strict_loads
+from sapga_ros.recording.events import DEFAULT_ROLE_TOPICS, MAX_EVENT_CHARS, ROLE_TYPES
+from sapga_ros.recording.reader import Recording, schema_type
 
 
 @dataclass
@@ -38,6 +38,7 @@ class Episode:
     commands: list[tuple[int | None, float]] = field(default_factory=list)  # (state stamp, u)
     exemplars: list[int] = field(default_factory=list)
     latest: int | None = None       # stamp of the latest state heard so far
+    kept: int = 0                   # [bytes] what its states and values take, about
 
     @property
     def closed(self) -> bool:
@@ -84,8 +85,8 @@ def topic_roles(rec: Recording, problem: Any) -> dict[str, str]:
     types = {name: schema_type(t) for name, t in rec.topics.items()}
     roles: dict[str, str] = {}
     try:
-        meta_topics = json.loads(rec.metadata.get('topics', '{}')[:MAX_EVENT_CHARS])
-    except (ValueError, RecursionError):
+        meta_topics = strict_loads(rec.metadata.get('topics', '{}')[:MAX_EVENT_CHARS], 'topics')
+    except (DataFileError, TypeError):
         meta_topics = {}
     if isinstance(meta_topics, dict):
         for role, topic in meta_topics.items():
@@ -119,12 +120,12 @@ def state_vector(msg: Any, problem: Any) -> np.ndarray | None:
     return out if np.all(np.isfinite(out)) else None
 
 
-def _event_ns(ev: dict[str, Any]) -> int | None:
+def event_ns(ev: dict[str, Any]) -> int | None:
     t = finite(ev.get('time'))
     return None if t is None else int(round(t * 1e9))
 
 
-def _stamp_ns(msg: Any) -> int:
+def stamp_ns(msg: Any) -> int:
     return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
 
 
@@ -138,83 +139,7 @@ def stamped_command(msg: Any, problem: Any) -> tuple[int, float | None]:
         value = effort[names.index(joint)]
     else:
         value = effort[0] if joint is None and len(effort) == 1 else None
-    return _stamp_ns(msg), finite(value)
-
-
-def build_episodes(messages: list[DecodedMessage], roles: dict[str, str],
-                   problem: Any) -> tuple[list[Episode], int]:
-    """Cut the messages into episodes; returns (episodes, malformed events).
-
-    Messages are taken in receive order.  States also carry their sim time, and events the
-    sim time of their state ('time'), so a state that arrives just after its episode's end
-    event (or just before the next start event) still goes to the episode it belongs to.
-    """
-    timeline = sorted((m for m in messages if roles.get(m.topic) in EPISODE_ROLES),
-                      key=lambda m: (m.log_time, m.index))
-    episodes: list[Episode] = []
-    orphans: list[tuple[int, np.ndarray | None]] = []   # states heard between episodes
-    bad_events = 0
-
-    def current() -> Episode | None:
-        return episodes[-1] if episodes else None
-
-    def open_episode() -> Episode:
-        ep = current()
-        if ep is None:          # the recording began inside an episode
-            ep = Episode(None)
-            episodes.append(ep)
-        return ep
-
-    for m in timeline:
-        role = roles[m.topic]
-        if role == 'event':
-            ev = parse_event(getattr(m.value, 'data', None))
-            if ev is None:
-                bad_events += 1
-                continue
-            kind = ev.get('event')
-            number = event_episode(ev)
-            if kind == 'start':
-                ep = Episode(number, start_ns=_event_ns(ev))
-                episodes.append(ep)
-                for stamp, s in orphans:
-                    if ep.owns(stamp):
-                        ep.add_state(stamp, s)
-                orphans.clear()
-            elif kind in EPISODE_END_EVENTS and not open_episode().closed:
-                ep = open_episode()
-                ep.number = number if ep.number is None else ep.number
-                ep.end, ep.end_event, ep.end_ns = kind, ev, _event_ns(ev)
-            continue
-        if role == 'state':
-            stamp = _stamp_ns(m.value)
-            s = state_vector(m.value, problem) if problem is not None else None
-            home = next((ep for ep in reversed(episodes[-2:]) if ep.owns(stamp)), None)
-            if home is not None:
-                home.add_state(stamp, s)
-            elif not episodes:
-                open_episode().add_state(stamp, s)
-            elif episodes[-1].closed:
-                orphans.append((stamp, s))
-            continue
-        ep = open_episode()
-        if ep.closed:
-            continue            # between episodes: belongs to none
-        if role == 'command_stamped':
-            stamp, value = stamped_command(m.value, problem)
-            if value is not None:
-                ep.commands.append((stamp, value + 0.0))
-            continue
-        value = finite(m.value.data)
-        if value is None:
-            continue
-        if role == 'reward':
-            ep.rewards.append(value)
-        elif role == 'command':     # held from the latest state on (zero-order hold)
-            ep.commands.append((ep.latest, value + 0.0))
-        elif role == 'exemplar':
-            ep.exemplars.append(int(value))
-    return episodes, bad_events
+    return stamp_ns(msg), finite(value)
 
 
 def episode_summary(ep: Episode, problem: Any, goal_delta: float | None) -> dict[str, Any]:

@@ -30,12 +30,16 @@ EPISODE_END_EVENTS = ('goal', 'step_limit', 'end_stop', 'reset')
 MAX_EVENT_CHARS = 65536     # an episode event is a few hundred characters
 
 
+def _bare(name: str) -> float:
+    raise ValueError(f'bare {name}')   # strict JSON: a non-finite number is null
+
+
 def parse_event(text: Any) -> dict[str, Any] | None:
     """An episode_event JSON object, or None if ``text`` is not one (or is too large)."""
     if not isinstance(text, str) or len(text) > MAX_EVENT_CHARS:
         return None
     try:
-        doc = json.loads(text)
+        doc = json.loads(text, parse_constant=_bare)
     except (ValueError, RecursionError):  # malformed or hostile (deep nesting): not an event
         return None
     return doc if isinstance(doc, dict) else None

@@ -8,16 +8,27 @@ same quantities recomputed from the recorded rewards and states are reported bes
 (``return_from_rewards``, ``delta_star_from_states``).  The problem is the one named in the
 bag's metadata (or the JointState ``frame_id``).  A recording cut short by a hard kill is
 summarised as far as it can be read (``complete`` false, ``error`` says where it ends).
+
+``inspect_path`` streams: a first pass counts the messages and finds the metadata (a single
+file's ``sapga`` record is written last), a second decodes the episode topics and cuts them
+(``cutter.py``), one episode summarised as soon as it is complete; no pass keeps the
+messages, so the memory is that of a chunk and of the longest episode, whatever the count.
 """
 from __future__ import annotations
 
-from typing import Any
+from dataclasses import dataclass, field
+from typing import Any, Callable
 
 from sapga_ros.errors import ConfigError, McapError
-from sapga_ros.recording.episodes import (EPISODE_ROLES, Episode, finite, build_episodes,
-                                          episode_summary, topic_roles)
+from sapga_ros.recording.chunks import BUDGET_FLOOR, BUDGET_RATIO
+from sapga_ros.recording.cutter import Cutter
+from sapga_ros.recording.episodes import EPISODE_ROLES, Episode, episode_summary, finite, \
+    topic_roles
 from sapga_ros.recording.events import ROLE_TYPES
-from sapga_ros.recording.reader import Recording, decode_messages, schema_type
+from sapga_ros.recording.reader import (Decoder, RecordedMessage, Recording, Sink,
+                                        read_recording, schema_type)
+
+Replay = Callable[[Sink], None]      # pushes every message of the recording, in file order
 
 
 def _load_problem(name: str | None) -> tuple[Any, str | None]:
@@ -30,60 +41,143 @@ def _load_problem(name: str | None) -> tuple[Any, str | None]:
         return None, str(exc)
 
 
-def _problem_name(rec: Recording) -> str | None:
+@dataclass
+class Scan:
+    """What the first pass keeps: counts, times, each topic's first message."""
+
+    count: int = 0
+    counts: dict[str, int] = field(default_factory=dict)
+    first: dict[str, tuple[int, RecordedMessage]] = field(default_factory=dict)
+    start: int | None = None
+    end: int | None = None
+
+    def add(self, m: RecordedMessage) -> None:
+        if m.topic not in self.first:
+            self.first[m.topic] = (self.count, m)
+        self.counts[m.topic] = self.counts.get(m.topic, 0) + 1
+        self.count += 1
+        self.start = m.log_time if self.start is None else min(self.start, m.log_time)
+        self.end = m.log_time if self.end is None else max(self.end, m.log_time)
+
+
+def _problem_name(rec: Recording, scan: Scan) -> str | None:
     """The problem named in the metadata, else the first JointState's frame_id."""
     name = rec.metadata.get('problem')
     if name:
         return name
-    states = {t for t, info in rec.topics.items() if schema_type(info) == ROLE_TYPES['state']}
-    first = [m for m in rec.messages if m.topic in states][:1]
-    view = Recording(path=rec.path, topics=rec.topics, messages=first)
-    for m in decode_messages(view, states)[0]:
-        return m.value.header.frame_id or None
-    return None
+    states = [scan.first[t] for t, info in rec.topics.items()
+              if t in scan.first and schema_type(info) == ROLE_TYPES['state']]
+    if not states:
+        return None
+    i, m = min(states, key=lambda x: x[0])
+    decoded = Decoder(rec.topics)(i, m)
+    return (decoded.value.header.frame_id or None) if decoded is not None else None
 
 
-def summarize(rec: Recording) -> tuple[dict[str, Any], list[Episode], Any]:
-    """The summary dict of a recording, its episodes and its problem (None if unknown)."""
+class Picker:
+    """The episode to plot, chosen as episodes go by: number ``number`` (the first of it
+    with 2 or more states), else the one of the highest return (the first of equals)."""
+
+    def __init__(self, number: int | None) -> None:
+        self.number = number
+        self.best: tuple[Episode, dict] | None = None
+        self._key: tuple = ()
+
+    def offer(self, ep: Episode, summary: dict) -> None:
+        if len(ep.trajectory()[0]) < 2:
+            return
+        if self.number is not None:
+            if ep.number == self.number and self.best is None:
+                self.best = ep, summary
+            return
+        key = (summary['return'] is not None, summary['return'] or 0.0)
+        if self.best is None or key > self._key:
+            self.best, self._key = (ep, summary), key
+
+    def chosen(self) -> tuple[Episode, dict]:
+        if self.best is None:
+            raise McapError(f'episode {self.number}: not in the recording, or fewer than 2 '
+                            'states' if self.number is not None else
+                            'nothing to plot: no episode with 2 or more states')
+        return self.best
+
+
+def summarize(rec: Recording, scan: Scan | None = None, replay: Replay | None = None,
+              picker: Picker | None = None) -> tuple[dict[str, Any], list[Episode], Any]:
+    """The summary dict of a recording, its episodes and its problem (None if unknown).
+
+    ``rec`` holds the messages, or ``scan`` counts them and ``replay`` pushes them again;
+    then no episode is kept (the list is empty) but the one ``picker`` chooses."""
+    if scan is None:
+        scan = Scan()
+        for m in rec.messages:
+            scan.add(m)
+    if replay is None:
+        replay = lambda sink: [sink(m) for m in rec.messages]  # noqa: E731
+    kept: list[Episode] = []
     meta = rec.metadata
-    problem_name = _problem_name(rec)
+    problem_name = _problem_name(rec, scan)
     problem, problem_error = _load_problem(problem_name)
     roles = topic_roles(rec, problem)
-    messages, failed = decode_messages(rec, [t for t, r in roles.items() if r in EPISODE_ROLES])
-    episodes, bad_events = build_episodes(messages, roles, problem)
     goal_delta = finite(meta.get('delta'))
     if problem is not None:
         goal_delta = problem.resolve('delta', goal_delta)
-    counts = rec.topic_counts()
-    topics = [{'topic': name, 'type': t.type, 'count': counts[name], 'role': roles.get(name),
-               'message_encoding': t.message_encoding,
-               'schema_encoding': t.schema.encoding if t.schema else ''}
-              for name, t in rec.topics.items()]
-    times = [m.log_time for m in rec.messages]
-    first = rec.files[0] if rec.files else None
+    summaries: list[dict] = []
+
+    def done(ep: Episode) -> None:
+        summaries.append(episode_summary(ep, problem, goal_delta))
+        if picker is not None:
+            picker.offer(ep, summaries[-1])
+        if rec.messages:            # held in memory: the caller may want them all
+            kept.append(ep)
+    cutter = Cutter(roles, problem, done, limit=BUDGET_FLOOR + BUDGET_RATIO * rec.size)
+    decode = Decoder(rec.topics, [t for t, r in roles.items() if r in EPISODE_ROLES])
+    index = [0]
+
+    def sink(m: RecordedMessage) -> None:
+        i = index[0]
+        index[0] += 1
+        if i < scan.count and (d := decode(i, m)) is not None:
+            cutter.feed(d)
+    replay(sink)
+    cutter.close()
     summary = {
-        'file': rec.path, 'bag': rec.is_bag, 'bytes': rec.size, 'complete': rec.complete,
-        'error': rec.error, 'profile': first.profile if first else '',
-        'library': first.library if first else '',
+        'file': rec.path, 'bag': rec.is_bag, 'bytes': rec.size,
+        'complete': rec.complete and not cutter.overflow,
+        'error': rec.error or cutter.overflow,
+        'profile': rec.files[0].profile if rec.files else '',
+        'library': rec.files[0].library if rec.files else '',
         'storage_files': [{'path': f.path, 'bytes': f.size, 'messages': f.message_count,
                            'complete': f.complete, 'error': f.error} for f in rec.files],
         'problem': problem_name, 'problem_error': problem_error,
         'goal_delta': goal_delta,
-        'message_count': len(rec.messages),
-        'start_time_ns': min(times) if times else None,
-        'end_time_ns': max(times) if times else None,
-        'duration_s': (max(times) - min(times)) * 1e-9 if times else 0.0,
-        'topics': topics,
-        'undecodable_topics': failed,
-        'malformed_events': bad_events,
-        'episodes': [episode_summary(ep, problem, goal_delta) for ep in episodes],
+        'message_count': scan.count,
+        'start_time_ns': scan.start, 'end_time_ns': scan.end,
+        'duration_s': (scan.end - scan.start) * 1e-9 if scan.count else 0.0,
+        'topics': [{'topic': name, 'type': t.type, 'count': scan.counts.get(name, 0),
+                    'role': roles.get(name), 'message_encoding': t.message_encoding,
+                    'schema_encoding': t.schema.encoding if t.schema else ''}
+                   for name, t in rec.topics.items()],
+        'undecodable_topics': decode.failed,
+        'malformed_events': cutter.bad_events,
+        'episodes': summaries,
         'metadata': meta,
     }
-    eps = summary['episodes']
-    summary['episodes_reaching_goal'] = sum(e['reached_goal'] for e in eps)
-    returns = [e['return'] for e in eps if e['return'] is not None]
+    summary['episodes_reaching_goal'] = sum(e['reached_goal'] for e in summaries)
+    returns = [e['return'] for e in summaries if e['return'] is not None]
     summary['best_return'] = max(returns) if returns else None
-    return summary, episodes, problem
+    return summary, kept, problem
+
+
+def inspect_path(path: str, picker: Picker | None = None
+                 ) -> tuple[dict[str, Any], Recording, Any]:
+    """(summary, recording without its messages, problem) of the recording at ``path``,
+    streamed in two passes (see the module doc); McapError if nothing can be read."""
+    scan = Scan()
+    rec = read_recording(path, sink=scan.add)
+    summary, _, problem = summarize(rec, scan, lambda sink: read_recording(path, sink=sink),
+                                    picker)
+    return summary, rec, problem
 
 
 def fmt(x: Any, spec: str) -> str:
@@ -125,17 +219,3 @@ def format_summary(s: dict[str, Any]) -> str:
                          f'{fmt(e["hold_fraction"], ".4f"):>6} {fmt(e["rail_contacts"], "d"):>4}'
                          f'  {actions}')
     return '\n'.join(lines)
-
-
-def pick_episode(episodes: list[Episode], summaries: list[dict], number: int | None) -> int:
-    """Index of episode ``number``, else of the best-return episode, with 2 or more states."""
-    candidates = [i for i, ep in enumerate(episodes) if len(ep.trajectory()[0]) >= 2]
-    if number is not None:
-        for i in candidates:
-            if episodes[i].number == number:
-                return i
-        raise McapError(f'episode {number}: not in the recording, or fewer than 2 states')
-    if not candidates:
-        raise McapError('nothing to plot: no episode with 2 or more states')
-    return max(candidates, key=lambda i: (summaries[i]['return'] is not None,
-                                          summaries[i]['return'] or 0.0, -i))

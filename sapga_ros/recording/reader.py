@@ -8,6 +8,13 @@ chunks with ``complete=False`` and an ``error`` naming the file and the byte whe
 a chunk whose contents are damaged (its record whole) is skipped, and the reading goes on.
 Decompression is bounded (``chunks.py``); only regular files are opened.  McapError (one
 line) when nothing at all can be read.
+
+``read_recording(path, sink)`` streams instead: each message goes to ``sink`` as it is read
+and none is kept, so a recording of any number of messages is read in the memory of one
+chunk (``MAX_CHUNK_BYTES``); decompression stays bounded by the file size (a bomb is still
+refused with one line), the messages' count is not.  ``Decoder`` decodes them one at a
+time (``decode_messages`` a whole list).  The module stays over 300 lines so that reading,
+streaming and decoding share one definition of a message.
 """
 from __future__ import annotations
 
@@ -16,7 +23,7 @@ import re
 import struct
 from dataclasses import dataclass, field
 from pathlib import Path, PurePath
-from typing import Any, BinaryIO, Collection, NamedTuple
+from typing import Any, BinaryIO, Callable, Collection, NamedTuple
 
 from mcap.exceptions import EndOfFile, InvalidMagic
 from mcap.records import Channel, Chunk, Footer, Header, Message, Metadata, Schema
@@ -122,8 +129,14 @@ def open_storage(path: Path) -> BinaryIO:
         raise McapError(f'{path}: cannot read ({exc.strerror or exc})') from exc
 
 
-def read_file(path: Path, rec: Recording, budget: Budget) -> FileRecording:
-    """Append the topics and messages of one MCAP file to ``rec``."""
+Sink = Callable[[RecordedMessage], None]
+
+
+def read_file(path: Path, rec: Recording, budget: Budget, sink: Sink | None = None
+              ) -> FileRecording:
+    """Append the topics and messages of one MCAP file to ``rec`` (the messages to ``sink``
+    instead, if given)."""
+    take = sink or rec.messages.append
     with open_storage(path) as f:
         size = os.fstat(f.fileno()).st_size
         head = f.read(len(MCAP_MAGIC))
@@ -144,14 +157,14 @@ def read_file(path: Path, rec: Recording, budget: Budget) -> FileRecording:
                                if isinstance(record, Chunk) else [record])
                 except BudgetExceeded as exc:     # keep what fits, then stop
                     for r in exc.records:
-                        _take(r, rec, out, channels, schemas)
+                        _take(r, rec, out, channels, schemas, take)
                     raise
                 except McapError as exc:    # this chunk only: the next record is whole
                     out.error = out.error or (f'{exc}; its messages are skipped (`sapga bag '
                                               'reindex` keeps every other chunk)')
                     records = []
                 for r in records:
-                    _take(r, rec, out, channels, schemas)
+                    _take(r, rec, out, channels, schemas, take)
                 good = f.tell()
         except (EndOfFile, InvalidMagic, struct.error) as exc:
             if out.complete:
@@ -171,11 +184,11 @@ def read_file(path: Path, rec: Recording, budget: Budget) -> FileRecording:
 
 
 def _take(r: object, rec: Recording, out: FileRecording, channels: dict[int, str],
-          schemas: dict[int, Schema]) -> None:
+          schemas: dict[int, Schema], take: Sink) -> None:
     if isinstance(r, Message):
         topic = channels.get(r.channel_id)
         if topic is not None:
-            rec.messages.append(RecordedMessage(topic, r.log_time, r.publish_time, r.data))
+            take(RecordedMessage(topic, r.log_time, r.publish_time, r.data))
             out.message_count += 1
     elif isinstance(r, Schema):
         schemas.setdefault(r.id, r)
@@ -225,15 +238,16 @@ def bag_files(bag: Path, rec: Recording) -> list[Path]:
     return [bag / PurePath(name).name for name in meta['relative_file_paths']]
 
 
-def read_recording(path: str | os.PathLike) -> Recording:
-    """Read a bag directory or an MCAP file, keeping everything before any damage."""
+def read_recording(path: str | os.PathLike, sink: Sink | None = None) -> Recording:
+    """Read a bag directory or an MCAP file, keeping everything before any damage (the
+    messages go to ``sink`` instead, if given: see the module doc)."""
     p = Path(path)
     rec = Recording(path=str(p))
     files = bag_files(p, rec) if p.is_dir() else [p]
-    budget = Budget(sum(f.stat().st_size for f in files if f.is_file()))
+    budget = Budget(sum(f.stat().st_size for f in files if f.is_file()), keeps=sink is None)
     for file in files:
         try:
-            rec.files.append(read_file(file, rec, budget))
+            rec.files.append(read_file(file, rec, budget, sink))
         except McapError as exc:
             if not p.is_dir():
                 raise
@@ -263,37 +277,49 @@ def schema_type(topic: TopicRecord) -> str:
         return topic.type
 
 
+class Decoder:
+    """Decodes the ros2msg/cdr messages of ``topics`` (default all) one at a time; a broken
+    schema or message spoils its topic only (``failed``: {topic: what failed})."""
+
+    def __init__(self, known: dict[str, TopicRecord], topics: Collection[str] | None = None
+                 ) -> None:
+        from mcap_ros2.decoder import DecoderFactory
+
+        self.known, self.topics = known, topics
+        self.factory = DecoderFactory()
+        self.decoders: dict[str, Any] = {}
+        self.failed: dict[str, str] = {}
+
+    def __call__(self, i: int, msg: RecordedMessage) -> DecodedMessage | None:
+        """Message ``i`` decoded, or None (another topic, or its topic failed)."""
+        if msg.topic in self.failed or (self.topics is not None and msg.topic not in self.topics):
+            return None
+        info = self.known[msg.topic]
+        if msg.topic not in self.decoders:
+            try:
+                self.decoders[msg.topic] = self.factory.decoder_for(info.message_encoding,
+                                                                    info.schema)
+            except Exception as exc:  # noqa: BLE001 - a broken schema spoils one topic only
+                self.failed[msg.topic] = f'schema {info.type}: {exc}'[:200]
+                return None
+            if self.decoders[msg.topic] is None:
+                self.failed[msg.topic] = (f'no ros2msg/cdr decoder (message encoding '
+                                          f'{info.message_encoding!r})')
+                return None
+        try:
+            value = self.decoders[msg.topic](msg.data)
+        except Exception as exc:  # noqa: BLE001 - one malformed message spoils one topic only
+            self.failed[msg.topic] = f'message {i} does not decode ({exc})'[:200]
+            return None
+        return DecodedMessage(msg.topic, info.type, msg.log_time, msg.publish_time, i, value)
+
+
 def decode_messages(rec: Recording, topics: Collection[str] | None = None,
                     ) -> tuple[list[DecodedMessage], dict[str, str]]:
     """Decode the ros2msg/cdr messages (of ``topics``, default all).
 
     Returns (messages, {topic: what failed}): a broken schema or message spoils its topic only.
     """
-    from mcap_ros2.decoder import DecoderFactory
-
-    factory = DecoderFactory()
-    decoders: dict[str, Any] = {}
-    failed: dict[str, str] = {}
-    out: list[DecodedMessage] = []
-    for i, msg in enumerate(rec.messages):
-        if msg.topic in failed or (topics is not None and msg.topic not in topics):
-            continue
-        info = rec.topics[msg.topic]
-        if msg.topic not in decoders:
-            try:
-                decoders[msg.topic] = factory.decoder_for(info.message_encoding, info.schema)
-            except Exception as exc:  # noqa: BLE001 - a broken schema spoils one topic only
-                failed[msg.topic] = f'schema {info.type}: {exc}'[:200]
-                continue
-            if decoders[msg.topic] is None:
-                failed[msg.topic] = (f'no ros2msg/cdr decoder (message encoding '
-                                     f'{info.message_encoding!r})')
-                continue
-        try:
-            value = decoders[msg.topic](msg.data)
-        except Exception as exc:  # noqa: BLE001 - one malformed message spoils one topic only
-            failed[msg.topic] = f'message {i} does not decode ({exc})'[:200]
-            continue
-        out.append(DecodedMessage(msg.topic, info.type, msg.log_time, msg.publish_time, i,
-                                  value))
-    return out, failed
+    decode = Decoder(rec.topics, topics)
+    out = [d for i, msg in enumerate(rec.messages) if (d := decode(i, msg)) is not None]
+    return out, decode.failed

@@ -89,7 +89,7 @@ def layout(problem: Problem) -> dict[str, Any]:
 
 def layout_text(problem: Problem) -> str:
     """The layout file's text: JSON, indented, one trailing newline."""
-    return json.dumps(layout(problem), indent=2) + '\n'
+    return json.dumps(layout(problem), indent=2, allow_nan=False) + '\n'
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -427,13 +427,13 @@ class SimNode(Node):
 
     def _publish_event(self, event: str, d: float) -> None:
         doc = {'event': event, 'episode': self._episode, 'step': self._step,
-               'return': self._return, 'delta': _json_number(d),
+               'return': _json_number(self._return), 'delta': _json_number(d),
                'delta_star': _json_number(self._delta_star),
                'goal_delta': self.settings.delta,
                'time': self._tick * self._tick_ns / 1e9,   # sim time of the state [s]
                'late_commands': self.commands.late - self._late_before,
                **hold_measures(*self._hold[:2], self._step, self._hold[2])}
-        self._event_pub.publish(String(data=json.dumps(doc)))
+        self._event_pub.publish(String(data=json.dumps(doc, allow_nan=False)))
 
 
 def main(args: list[str] | None = None, problem: str = 'acrobot',

@@ -1,0 +1,153 @@
+"""Cutting a recording's messages into episodes one message at a time, in bounded memory.
+
+``Cutter.feed`` takes decoded messages in file order and hands each episode to ``done`` once
+nothing more can join it, so a reader holds the two or three newest episodes, never the whole
+recording: a bag of millions of messages is summarised in the memory of its longest episode.
+Messages are taken in receive order (``log_time``, then file order) through a window of
+``WINDOW`` messages, as a recorder writes them (a file whose messages are further out of order
+than that is cut in the order the window gives).
+
+What the open episodes keep is bounded in bytes: each state or value costs about what it
+takes (``KEPT_STATE``, ``KEPT_VALUE``); past ``limit`` bytes the cutter takes no more messages
+and ``overflow`` says where it stopped (one line), the episodes so far are still reported.
+``build_episodes`` cuts a list of messages at once (the same rules).
+"""
+from __future__ import annotations
+
+import heapq
+from typing import Any, Callable
+
+from sapga_ros.recording.episodes import (EPISODE_ROLES, Episode, event_ns, finite,
+                                          stamp_ns, stamped_command, state_vector)
+from sapga_ros.recording.events import EPISODE_END_EVENTS, event_episode, parse_event
+from sapga_ros.recording.reader import DecodedMessage
+
+WINDOW = 4096               # messages reordered by receive time before they are cut
+KEPT_STATE = 400            # [bytes] a kept state: its stamp, vector and dict entry, about
+KEPT_VALUE = 100            # [bytes] a kept reward, command or exemplar index, about
+
+
+class Cutter:
+    """Episodes of the messages fed to it (see the module doc)."""
+
+    def __init__(self, roles: dict[str, str], problem: Any, done: Callable[[Episode], None],
+                 limit: float = float('inf'), window: int = WINDOW) -> None:
+        self.roles, self.problem, self.done = roles, problem, done
+        self.limit, self.window = limit, window
+        self.kept = 0                   # [bytes] kept by the open episodes
+        self.bad_events = 0
+        self.overflow: str | None = None
+        self._heap: list[tuple[int, int, DecodedMessage]] = []
+        self._open: list[Episode] = []      # the newest episodes (at most three)
+        self._orphans: list[tuple[int, Any]] = []   # states heard between episodes
+
+    def feed(self, m: DecodedMessage) -> None:
+        if self.roles.get(m.topic) not in EPISODE_ROLES or self.overflow:
+            return
+        heapq.heappush(self._heap, (m.log_time, m.index, m))
+        if len(self._heap) > self.window:
+            self._take(heapq.heappop(self._heap)[2])
+
+    def close(self) -> None:
+        """Cut what is left and hand every open episode to ``done``."""
+        while self._heap and not self.overflow:
+            self._take(heapq.heappop(self._heap)[2])
+        self._heap.clear()
+        for ep in self._open:
+            self.done(ep)
+        self._open.clear()
+
+    def _current(self) -> Episode:
+        """The newest episode (one of unknown number if the recording began inside it)."""
+        if not self._open:
+            self._open.append(Episode(None))
+        return self._open[-1]
+
+    def _keep(self, ep: Episode, cost: int, m: DecodedMessage) -> None:
+        ep.kept += cost
+        self.kept += cost
+        if self.kept > self.limit:
+            self.overflow = (f'message {m.index} ({m.topic}): the episodes read would take '
+                             f'more than {int(self.limit)} bytes in memory; the rest is not '
+                             'summarised')
+
+    def _start(self, ep: Episode) -> None:
+        self._open.append(ep)
+        while len(self._open) > 2:      # states find their episode among the newest two
+            old = self._open.pop(0)
+            self.kept -= old.kept
+            self.done(old)
+
+    def _take(self, m: DecodedMessage) -> None:
+        role = self.roles[m.topic]
+        if role == 'event':
+            self._event(m)
+            return
+        if role == 'state':
+            stamp = stamp_ns(m.value)
+            s = state_vector(m.value, self.problem) if self.problem is not None else None
+            home = next((ep for ep in reversed(self._open[-2:]) if ep.owns(stamp)), None)
+            if home is None and not self._open:
+                home = self._current()
+            if home is not None:
+                if stamp not in home.states:
+                    self._keep(home, KEPT_STATE, m)
+                home.add_state(stamp, s)
+            elif self._open[-1].closed:
+                self._orphans.append((stamp, s))
+                self._keep(self._open[-1], KEPT_STATE, m)
+            return
+        ep = self._current()
+        if ep.closed:
+            return              # between episodes: belongs to none
+        if role == 'command_stamped':
+            stamp, value = stamped_command(m.value, self.problem)
+            if value is not None:
+                ep.commands.append((stamp, value + 0.0))
+                self._keep(ep, KEPT_VALUE, m)
+            return
+        value = finite(m.value.data)
+        if value is None:
+            return
+        if role == 'reward':
+            ep.rewards.append(value)
+        elif role == 'command':     # held from the latest state on (zero-order hold)
+            ep.commands.append((ep.latest, value + 0.0))
+        elif role == 'exemplar':
+            ep.exemplars.append(int(value))
+        self._keep(ep, KEPT_VALUE, m)
+
+    def _event(self, m: DecodedMessage) -> None:
+        ev = parse_event(getattr(m.value, 'data', None))
+        if ev is None:
+            self.bad_events += 1
+            return
+        kind = ev.get('event')
+        number = event_episode(ev)
+        if kind == 'start':
+            ep = Episode(number, start_ns=event_ns(ev))
+            self._start(ep)
+            for stamp, s in self._orphans:
+                if ep.owns(stamp):
+                    ep.add_state(stamp, s)
+            self._orphans.clear()
+        elif kind in EPISODE_END_EVENTS and not self._current().closed:
+            ep = self._current()
+            ep.number = number if ep.number is None else ep.number
+            ep.end, ep.end_event, ep.end_ns = kind, ev, event_ns(ev)
+
+
+def build_episodes(messages: list[DecodedMessage], roles: dict[str, str],
+                   problem: Any) -> tuple[list[Episode], int]:
+    """Cut the messages into episodes; returns (episodes, malformed events).
+
+    Messages are taken in receive order.  States also carry their sim time, and events the
+    sim time of their state ('time'), so a state that arrives just after its episode's end
+    event (or just before the next start event) still goes to the episode it belongs to.
+    """
+    episodes: list[Episode] = []
+    cutter = Cutter(roles, problem, episodes.append, window=len(messages) + 1)
+    for m in messages:
+        cutter.feed(m)
+    cutter.close()
+    return episodes, cutter.bad_events
