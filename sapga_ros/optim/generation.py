@@ -1,0 +1,230 @@
+"""A SAP-GA generation's crossovers in two compiled passes, bit for bit the operators of
+``sapga_ros.optim.operators`` applied family by family.
+
+``unions``: each family's deduplicated union of its two parents (first-seen order), from
+exemplar records compared bit for bit (as ``parents_union``).  ``children``: every child of
+every family by uniform exemplar crossover (as ``uniform_crossover``), reading its random
+draws from a block of doubles drawn ahead: an attempt consumes exactly what
+``uniform_crossover``'s attempt draws (the rate, then one double per exemplar of parent 1,
+then of parent 2), so the caller advances the generator by the count the pass consumed
+(``crossovers``).  A child that needs repairing is handed back to the caller, which
+repairs it with the generator itself (``uniform_crossover``'s repair) and resumes.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from sapga_ros.optim.operators import repair
+from sapga_ros.policies.exemplar import ExemplarPolicy, concat_policies
+from sapga_ros.policies.styles import STYLES
+from sim_nodes.jit import kernel
+
+DONE, REPAIR, MORE = 0, 1, 2       # how a ``children`` pass ended
+
+
+@kernel
+def unions(keys, fam_start, uid, urep, ucount):
+    """Family f holds rows fam_start[f]..fam_start[f+1]-1 of ``keys`` (one row of int64
+    words per exemplar record).  uid[i]: the index of row i's record in its family's union
+    (first-seen order); urep[fam_start[f] + u]: the row of union member u; ucount[f]: the
+    union's size."""
+    for f in range(fam_start.shape[0] - 1):
+        a, b = fam_start[f], fam_start[f + 1]
+        n = b - a
+        h = np.empty(n, dtype=np.uint64)
+        for i in range(n):
+            x = np.uint64(1469598103934665603)
+            for w in range(keys.shape[1]):
+                x = (x ^ np.uint64(keys[a + i, w])) * np.uint64(1099511628211)
+                x ^= x >> np.uint64(29)
+            h[i] = x
+        order = np.argsort(h, kind='mergesort')        # equal hashes: rows in order
+        rep = np.arange(n)
+        q = 0
+        while q < n:
+            e = q + 1
+            while e < n and h[order[e]] == h[order[q]]:
+                e += 1
+            for s in range(q + 1, e):                  # the first equal row represents
+                i = order[s]
+                for t in range(q, s):
+                    j = order[t]
+                    if rep[j] == j and _same(keys, a + i, a + j):
+                        rep[i] = j
+                        break
+            q = e
+        count = 0
+        for i in range(n):
+            if rep[i] == i:
+                uid[a + i] = count
+                urep[a + count] = a + i
+                count += 1
+            else:
+                uid[a + i] = uid[a + rep[i]]
+        ucount[f] = count
+
+
+@kernel(inline='always')
+def _same(keys, i, j):
+    for w in range(keys.shape[1]):
+        if keys[i, w] != keys[j, w]:
+            return False
+    return True
+
+
+@kernel
+def children(uid, urep, fam_start, n1, ucount, u, f, c, n_child, low, span, l_min, l_max,
+             max_tries, out_idx, out_start):
+    """Children (f, c) onwards (family-major) until done, a repair, or too few draws left
+    in ``u`` for a child's worst case.  Child k = f n_child + c is the rows
+    out_idx[out_start[k]:out_start[k + 1]]; a child to repair is left empty.  Returns
+    (draws consumed, f, c, DONE / REPAIR (child f, c, its attempts consumed) / MORE)."""
+    pos = 0
+    mark = np.full(max(1, np.max(ucount)), -1)
+    stamp = 0
+    families = fam_start.shape[0] - 1
+    while f < families:
+        a = fam_start[f]
+        m1 = n1[f]
+        m2 = fam_start[f + 1] - a - m1
+        while c < n_child:
+            k = f * n_child + c
+            write = out_start[k]
+            if pos + max_tries * (1 + m1 + m2) > u.shape[0]:
+                return pos, f, c, MORE
+            legal = False
+            for _ in range(max_tries):
+                r = low + span * u[pos]                # as Generator.uniform(low, high)
+                pos += 1
+                stamp += 1
+                count = 0
+                for i in range(m1):                    # e in E^p1 with probability r
+                    if u[pos + i] < r:
+                        j = uid[a + i]
+                        if mark[j] != stamp:
+                            mark[j] = stamp
+                            out_idx[write + count] = urep[a + j]
+                            count += 1
+                pos += m1
+                other = 1.0 - r
+                for i in range(m2):                    # e in E^p2 with probability 1 - r
+                    if u[pos + i] < other:
+                        j = uid[a + m1 + i]
+                        if mark[j] != stamp:
+                            mark[j] = stamp
+                            out_idx[write + count] = urep[a + j]
+                            count += 1
+                pos += m2
+                if l_min <= count <= l_max:
+                    legal = True
+                    break
+            if not legal:
+                out_start[k + 1] = write
+                return pos, f, c, REPAIR
+            out_start[k + 1] = write + count
+            c += 1
+        c = 0
+        f += 1
+    return pos, f, c, DONE
+
+
+def record_keys(states, states2, actions, values, style: str) -> np.ndarray:
+    """(L, W) int64: the bits of each exemplar's record, every field ``style`` uses (equal
+    records, equal rows; as ``ExemplarPolicy.records``)."""
+    spec = STYLES[style]
+    cols = [states.view(np.int64)]
+    if spec.uses('state2'):
+        cols.append(states2.view(np.int64))
+    if spec.uses('action'):
+        cols.append(actions.astype(np.float64)[:, None].view(np.int64))
+    if spec.uses('value'):
+        cols.append(values[:, None].view(np.int64))
+    return np.ascontiguousarray(np.concatenate(cols, axis=1))
+
+
+def consume(rng: np.random.Generator, saved: dict, count: int) -> None:
+    """Set ``rng`` to state ``saved`` advanced by ``count`` doubles drawn (each draw one
+    step of the bit generator; its buffered 32-bit half, which doubles never touch, kept)."""
+    bits = rng.bit_generator
+    bits.state = saved
+    if count:
+        bits.advance(count)
+        state = bits.state
+        state['has_uint32'], state['uinteger'] = saved['has_uint32'], saved['uinteger']
+        bits.state = state
+
+
+def crossovers(parents: list[tuple[ExemplarPolicy, ExemplarPolicy]], rng: np.random.Generator,
+               n_child: int, l_min: int, l_max: int, rate: tuple[float, float],
+               max_tries: int) -> tuple[list[ExemplarPolicy], int]:
+    """The ``n_child`` children of each pair of ``parents`` (family by family), drawn from
+    ``rng`` exactly as ``uniform_crossover`` would draw them one by one, and the number of
+    children repaired."""
+    first = parents[0][0]
+    problem, style = first.problem, first.style
+    flat = [p for pair in parents for p in pair]
+    states = np.concatenate([p.states for p in flat])
+    states2 = np.concatenate([p.states2 for p in flat])
+    actions = np.concatenate([p.actions for p in flat])
+    values = np.concatenate([p.values for p in flat])
+    sizes = np.array([len(p) for p in flat], dtype=np.int64)
+    fam_start = np.zeros(len(parents) + 1, dtype=np.int64)
+    fam_start[1:] = np.cumsum(sizes.reshape(-1, 2).sum(axis=1))
+    n1 = np.ascontiguousarray(sizes[0::2])
+    total = int(fam_start[-1])
+    uid = np.empty(total, dtype=np.int64)
+    urep = np.empty(total, dtype=np.int64)
+    ucount = np.empty(len(parents), dtype=np.int64)
+    unions(record_keys(states, states2, actions, values, style), fam_start, uid, urep, ucount)
+    kids = len(parents) * n_child
+    widest = int(np.max(np.diff(fam_start)))
+    out_idx = np.empty(kids * l_max + widest, dtype=np.int64)
+    out_start = np.zeros(kids + 1, dtype=np.int64)
+    low, span = float(rate[0]), float(rate[1]) - float(rate[0])   # as Generator.uniform
+    per_child = 1 + np.diff(fam_start)
+    need = max(int(1.25 * n_child * per_child.sum()), max_tries * int(per_child.max()))
+    repaired: dict[int, ExemplarPolicy] = {}
+    f = c = 0
+    while True:
+        saved = rng.bit_generator.state
+        block = rng.random(need)
+        used, f, c, status = children(uid, urep, fam_start, n1, ucount, block, f, c,
+                                      n_child, low, span, l_min, l_max, max_tries, out_idx,
+                                      out_start)
+        consume(rng, saved, used)
+        if status == DONE:
+            break
+        if status == REPAIR:
+            a = fam_start[f]
+            union = _subset(problem, style, states, states2, actions, values,
+                            urep[a:a + ucount[f]])
+            repaired[f * n_child + c] = repair(union, l_min, l_max, rng)
+            c += 1
+            if c == n_child:
+                f, c = f + 1, 0
+            if f == len(parents):
+                break
+    rows = out_idx[:out_start[-1]]
+    kid_states, kid_states2 = states[rows], states2[rows]
+    kid_actions, kid_values = actions[rows], values[rows]
+    out = []
+    for k in range(kids):
+        if k in repaired:
+            out.append(repaired[k])
+            continue
+        s = slice(out_start[k], out_start[k + 1])
+        out.append(ExemplarPolicy.of_valid(problem, kid_states[s], kid_actions[s], style,
+                                           kid_values[s], kid_states2[s]))
+    return out, len(repaired)
+
+
+def _subset(problem, style, states, states2, actions, values, rows) -> ExemplarPolicy:
+    return ExemplarPolicy.of_valid(problem, states[rows], actions[rows], style, values[rows],
+                                   states2[rows])
+
+
+def compact(policy: ExemplarPolicy) -> ExemplarPolicy:
+    """``policy`` with arrays of its own (a child's are views into its generation's)."""
+    if policy.states.base is None:
+        return policy
+    return concat_policies([policy])
