@@ -7,8 +7,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sapga_ros.optim.generation import crossovers
-from sapga_ros.optim.operators import parents_union, random_policy, uniform_crossover
+from sapga_ros.optim.generation import crossovers, refreshes
+from sapga_ros.optim.operators import (parents_union, random_policy, refresh,
+                                       uniform_crossover)
 from sapga_ros.policies.exemplar import concat_policies
 from sim_nodes.problem import load_problem
 
@@ -60,3 +61,31 @@ def test_crossovers_draw_for_draw_as_one_by_one(style, limits):
     assert fast_rng.random() == slow_rng.random()
     if l_min == l_max == 1 or tries == 3 and l_min == 60:
         assert fast_repairs > 0                        # the repair path was taken
+
+
+class Star:
+    """A family's best member as ``tell`` hands it to the refresh operator."""
+
+    def __init__(self, policy, used):
+        self.policy, self.used = policy, used
+
+
+@pytest.mark.parametrize('style', ['state-action', 'state-state', 'state-action-value',
+                                   'via-point', 'state-value'])
+def test_refreshes_draw_for_draw_as_one_by_one(style):
+    problem = load_problem('pdip' if style == 'state-state' else 'acrobot')
+    rng = np.random.default_rng(4)
+    stars = []
+    for k in range(9):
+        policy = random_policy(problem, rng, 5, 40, style)
+        used = rng.random(len(policy)) < (0.5 if k != 3 else 1.1)   # star 3: all used
+        stars.append(Star(policy, used))
+    fast_rng, slow_rng = np.random.default_rng(8), np.random.default_rng(8)
+    fast = refreshes(stars, fast_rng, (0.1, 0.6))
+    slow = [refresh(s.policy, s.used, slow_rng, (0.1, 0.6)) for s in stars]
+    for (a, n), (b, m) in zip(fast, slow):
+        assert n == m
+        for name in ('states', 'states2', 'actions', 'values'):
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+    assert fast_rng.bit_generator.state == slow_rng.bit_generator.state
+    assert sum(n for _, n in fast) > 0 and fast[3][1] == 0

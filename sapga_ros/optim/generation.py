@@ -228,3 +228,86 @@ def compact(policy: ExemplarPolicy) -> ExemplarPolicy:
     if policy.states.base is None:
         return policy
     return concat_policies([policy])
+
+
+@kernel
+def refresh_draws(rng, lengths, used, low, high, lo, hi, n_actions, value_low, value_high,
+                  uses, redraw, counts, fresh_states, fresh_states2, fresh_actions,
+                  fresh_values):
+    """``refresh``'s draws for policy after policy (``lengths``; ``used`` their marks,
+    concatenated), from ``rng`` itself (numba's Generator draws NumPy's sequence): the rate
+    U(lo, hi), one double per exemplar, then, if any exemplar is re-drawn, the fresh
+    records as ``random_exemplars`` draws them (states, second states, actions, values;
+    ``uses``: the style's fields state2, action, value).  ``redraw`` marks, per policy
+    ``counts``, fresh records in order (angles not yet wrapped)."""
+    span = high - low
+    a = 0
+    w = 0
+    for f in range(lengths.shape[0]):
+        r = rng.uniform(lo, hi)
+        count = 0
+        for i in range(lengths[f]):
+            hit = rng.random() < r
+            redraw[a + i] = hit and not used[a + i]
+            count += redraw[a + i]
+        counts[f] = count
+        if count:
+            for i in range(count):
+                for j in range(low.shape[0]):
+                    fresh_states[w + i, j] = low[j] + span[j] * rng.random()
+            if uses[0]:
+                for i in range(count):
+                    for j in range(low.shape[0]):
+                        fresh_states2[w + i, j] = low[j] + span[j] * rng.random()
+            if uses[1]:
+                fresh_actions[w:w + count] = rng.integers(0, n_actions, size=count)
+            if uses[2]:
+                for i in range(count):
+                    fresh_values[w + i] = rng.uniform(value_low, value_high)
+            w += count
+        a += lengths[f]
+
+
+def refreshes(stars: list, rng: np.random.Generator,
+              rate: tuple[float, float]) -> list[tuple[ExemplarPolicy, int]]:
+    """``refresh(star.policy, star.used, rng, rate)`` of each star in turn, in one compiled
+    pass of draws: the same clones, the same draws."""
+    first = stars[0].policy
+    problem, style = first.problem, first.style
+    spec = STYLES[style]
+    lengths = np.array([len(s.policy) for s in stars], dtype=np.int64)
+    used = np.concatenate([s.used for s in stars])
+    total = len(used)
+    redraw = np.zeros(total, dtype=np.bool_)
+    counts = np.zeros(len(stars), dtype=np.int64)
+    dim = problem.dim
+    fresh_states = np.empty((total, dim))
+    fresh_states2 = np.empty((total, dim))
+    fresh_actions = np.zeros(total, dtype=np.int64)
+    fresh_values = np.zeros(total)
+    uses = np.array([spec.uses('state2'), spec.uses('action'), spec.uses('value')])
+    value_low, value_high = (float(x) for x in problem.return_range)
+    refresh_draws(rng, lengths, used, np.asarray(problem.low, dtype=np.float64),
+                  np.asarray(problem.high, dtype=np.float64), float(rate[0]), float(rate[1]),
+                  len(problem.actions), value_low, value_high, uses, redraw, counts,
+                  fresh_states, fresh_states2, fresh_actions, fresh_values)
+    drawn = int(counts.sum())
+    fresh_states = first._wrapped(fresh_states[:drawn])
+    fresh_states2 = first._wrapped(fresh_states2[:drawn]) if uses[0] else None
+    out = []
+    a = w = 0
+    for star, n, count in zip(stars, lengths.tolist(), counts.tolist()):
+        p = star.policy
+        clone = ExemplarPolicy.of_valid(problem, p.states.copy(), p.actions.copy(), style,
+                                        p.values.copy(), p.states2.copy())
+        if count:
+            mask = redraw[a:a + n]
+            clone.states[mask] = fresh_states[w:w + count]
+            if fresh_states2 is not None:
+                clone.states2[mask] = fresh_states2[w:w + count]
+            clone.actions[mask] = fresh_actions[w:w + count]
+            clone.values[mask] = fresh_values[w:w + count]
+        out.append((clone, count))
+        a += n
+        w += count
+    return out

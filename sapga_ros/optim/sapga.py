@@ -22,8 +22,8 @@ from sapga_ros.errors import CheckpointError, ConfigError
 from sapga_ros.policies.exemplar import ExemplarPolicy
 from sapga_ros.policies.styles import STYLES
 from sapga_ros.optim.base import Optimizer, Result, State
-from sapga_ros.optim.generation import compact, crossovers
-from sapga_ros.optim.operators import random_policy, refresh
+from sapga_ros.optim.generation import compact, crossovers, refreshes
+from sapga_ros.optim.operators import random_policy
 from sapga_ros.optim.population import Individual, pack, unpack
 from sim_nodes.params import check, param
 from sim_nodes.problem import Problem
@@ -174,11 +174,13 @@ class SapGA(Optimizer):
             st.best_value = max(st.best_value, m.value)
             if self.best is None or rank(m) > rank(self.best):
                 self.best = m
+        stars = []
         for i, j, members in self._families:
             if self.params.variant in ('child-ties', 'dstar-child'):
                 members = members[2:] + members[:2]               # children first
-            star = max(members, key=rank)                         # pi*, first of equals
-            clone, count = refresh(star.policy, star.used, self.rng, self.params.refresh_rate)
+            stars.append(max(members, key=rank))                  # pi*, first of equals
+        clones = refreshes(stars, self.rng, self.params.refresh_rate)  # = refresh each
+        for (i, j, _), star, (clone, count) in zip(self._families, stars, clones):
             st.refreshed += count
             twin = Individual(clone)
             if count == 0:                                        # unchanged: value known
