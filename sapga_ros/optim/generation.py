@@ -1,14 +1,14 @@
-"""A SAP-GA generation's crossovers in two compiled passes, bit for bit the operators of
-``sapga_ros.optim.operators`` applied family by family.
+"""A SAP-GA generation's operators in compiled passes, bit for bit and draw for draw the
+operators of ``sapga_ros.optim.operators`` applied family by family.
 
 ``unions``: each family's deduplicated union of its two parents (first-seen order), from
 exemplar records compared bit for bit (as ``parents_union``).  ``children``: every child of
-every family by uniform exemplar crossover (as ``uniform_crossover``), reading its random
-draws from a block of doubles drawn ahead: an attempt consumes exactly what
-``uniform_crossover``'s attempt draws (the rate, then one double per exemplar of parent 1,
-then of parent 2), so the caller advances the generator by the count the pass consumed
-(``crossovers``).  A child that needs repairing is handed back to the caller, which
-repairs it with the generator itself (``uniform_crossover``'s repair) and resumes.
+every family by uniform exemplar crossover (as ``uniform_crossover``); a child that needs
+repairing is handed back to the caller, which repairs it (``operators.repair``) and
+resumes.  ``refresh_draws``: the refresh operator's draws for every family's best member
+(as ``refresh``).  The passes draw from the run's generator itself: numba's Generator
+draws NumPy's sequence from the same bit generator (tests/test_generation.py checks the
+children, the clones and the generator's state against the operators one by one).
 """
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ from sapga_ros.policies.exemplar import ExemplarPolicy, concat_policies
 from sapga_ros.policies.styles import STYLES
 from sim_nodes.jit import kernel
 
-DONE, REPAIR, MORE = 0, 1, 2       # how a ``children`` pass ended
+DONE, REPAIR = 0, 1                # how a ``children`` pass ended
 
 
 @kernel
@@ -73,13 +73,13 @@ def _same(keys, i, j):
 
 
 @kernel
-def children(uid, urep, fam_start, n1, ucount, u, f, c, n_child, low, span, l_min, l_max,
+def children(rng, uid, urep, fam_start, n1, ucount, f, c, n_child, low, span, l_min, l_max,
              max_tries, out_idx, out_start):
-    """Children (f, c) onwards (family-major) until done, a repair, or too few draws left
-    in ``u`` for a child's worst case.  Child k = f n_child + c is the rows
-    out_idx[out_start[k]:out_start[k + 1]]; a child to repair is left empty.  Returns
-    (draws consumed, f, c, DONE / REPAIR (child f, c, its attempts consumed) / MORE)."""
-    pos = 0
+    """Children (f, c) onwards (family-major) until done or a child to repair.  Child
+    k = f n_child + c is the rows out_idx[out_start[k]:out_start[k + 1]]; a child to
+    repair is left empty.  Each attempt draws what ``uniform_crossover``'s does: the rate,
+    then one double per exemplar of parent 1, then of parent 2.  Returns (f, c, DONE or
+    REPAIR: child (f, c), its attempts drawn)."""
     mark = np.full(max(1, np.max(ucount)), -1)
     stamp = 0
     families = fam_start.shape[0] - 1
@@ -90,42 +90,37 @@ def children(uid, urep, fam_start, n1, ucount, u, f, c, n_child, low, span, l_mi
         while c < n_child:
             k = f * n_child + c
             write = out_start[k]
-            if pos + max_tries * (1 + m1 + m2) > u.shape[0]:
-                return pos, f, c, MORE
             legal = False
             for _ in range(max_tries):
-                r = low + span * u[pos]                # as Generator.uniform(low, high)
-                pos += 1
+                r = low + span * rng.random()          # as Generator.uniform(low, high)
                 stamp += 1
                 count = 0
                 for i in range(m1):                    # e in E^p1 with probability r
-                    if u[pos + i] < r:
+                    if rng.random() < r:
                         j = uid[a + i]
                         if mark[j] != stamp:
                             mark[j] = stamp
                             out_idx[write + count] = urep[a + j]
                             count += 1
-                pos += m1
                 other = 1.0 - r
                 for i in range(m2):                    # e in E^p2 with probability 1 - r
-                    if u[pos + i] < other:
+                    if rng.random() < other:
                         j = uid[a + m1 + i]
                         if mark[j] != stamp:
                             mark[j] = stamp
                             out_idx[write + count] = urep[a + j]
                             count += 1
-                pos += m2
                 if l_min <= count <= l_max:
                     legal = True
                     break
             if not legal:
                 out_start[k + 1] = write
-                return pos, f, c, REPAIR
+                return f, c, REPAIR
             out_start[k + 1] = write + count
             c += 1
         c = 0
         f += 1
-    return pos, f, c, DONE
+    return f, c, DONE
 
 
 def record_keys(states, states2, actions, values, style: str) -> np.ndarray:
@@ -140,18 +135,6 @@ def record_keys(states, states2, actions, values, style: str) -> np.ndarray:
     if spec.uses('value'):
         cols.append(values[:, None].view(np.int64))
     return np.ascontiguousarray(np.concatenate(cols, axis=1))
-
-
-def consume(rng: np.random.Generator, saved: dict, count: int) -> None:
-    """Set ``rng`` to state ``saved`` advanced by ``count`` doubles drawn (each draw one
-    step of the bit generator; its buffered 32-bit half, which doubles never touch, kept)."""
-    bits = rng.bit_generator
-    bits.state = saved
-    if count:
-        bits.advance(count)
-        state = bits.state
-        state['has_uint32'], state['uinteger'] = saved['has_uint32'], saved['uinteger']
-        bits.state = state
 
 
 def crossovers(parents: list[tuple[ExemplarPolicy, ExemplarPolicy]], rng: np.random.Generator,
@@ -181,40 +164,28 @@ def crossovers(parents: list[tuple[ExemplarPolicy, ExemplarPolicy]], rng: np.ran
     out_idx = np.empty(kids * l_max + widest, dtype=np.int64)
     out_start = np.zeros(kids + 1, dtype=np.int64)
     low, span = float(rate[0]), float(rate[1]) - float(rate[0])   # as Generator.uniform
-    per_child = 1 + np.diff(fam_start)
-    need = max(int(1.25 * n_child * per_child.sum()), max_tries * int(per_child.max()))
     repaired: dict[int, ExemplarPolicy] = {}
     f = c = 0
-    while True:
-        saved = rng.bit_generator.state
-        block = rng.random(need)
-        used, f, c, status = children(uid, urep, fam_start, n1, ucount, block, f, c,
-                                      n_child, low, span, l_min, l_max, max_tries, out_idx,
-                                      out_start)
-        consume(rng, saved, used)
+    while f < len(parents):
+        f, c, status = children(rng, uid, urep, fam_start, n1, ucount, f, c, n_child, low,
+                                span, l_min, l_max, max_tries, out_idx, out_start)
         if status == DONE:
             break
-        if status == REPAIR:
-            a = fam_start[f]
-            union = _subset(problem, style, states, states2, actions, values,
-                            urep[a:a + ucount[f]])
-            repaired[f * n_child + c] = repair(union, l_min, l_max, rng)
-            c += 1
-            if c == n_child:
-                f, c = f + 1, 0
-            if f == len(parents):
-                break
+        a = fam_start[f]
+        union = _subset(problem, style, states, states2, actions, values,
+                        urep[a:a + ucount[f]])
+        repaired[f * n_child + c] = repair(union, l_min, l_max, rng)
+        c += 1
+        if c == n_child:
+            f, c = f + 1, 0
     rows = out_idx[:out_start[-1]]
-    kid_states, kid_states2 = states[rows], states2[rows]
-    kid_actions, kid_values = actions[rows], values[rows]
-    out = []
-    for k in range(kids):
-        if k in repaired:
-            out.append(repaired[k])
-            continue
-        s = slice(out_start[k], out_start[k + 1])
-        out.append(ExemplarPolicy.of_valid(problem, kid_states[s], kid_actions[s], style,
-                                           kid_values[s], kid_states2[s]))
+    kid_states, kid_states2 = states.take(rows, axis=0), states2.take(rows, axis=0)
+    kid_actions, kid_values = actions.take(rows), values.take(rows)   # take: faster
+    bounds = out_start.tolist()
+    out = [repaired[k] if k in repaired else ExemplarPolicy.of_valid(
+        problem, kid_states[bounds[k]:bounds[k + 1]], kid_actions[bounds[k]:bounds[k + 1]],
+        style, kid_values[bounds[k]:bounds[k + 1]], kid_states2[bounds[k]:bounds[k + 1]])
+        for k in range(kids)]
     return out, len(repaired)
 
 
