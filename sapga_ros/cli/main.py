@@ -225,7 +225,8 @@ def _bench_training(args) -> int:
     for problem, delta in SAPGA_ROWS:
         print(f'SAP-GA {problem:11s} delta {delta}: '
               f"{d[f'sapga_{problem}_steps_per_s'] / 1e6:6.3f} M steps/s (one thread, "
-              f"whole run of {d['steps_per_run']:,} steps)")
+              f"whole run of {d['steps_per_run']:,} steps; "
+              f"{d[f'sapga_{problem}_kernel_share']:.1%} of its CPU time in the batch kernel)")
     for problem, delta in QL_ROWS:
         print(f'QL     {problem:11s} delta {delta}: '
               f"{d[f'ql_{problem}_alone_steps_per_s'] / 1e6:6.3f} M steps/s alone, "

@@ -28,7 +28,7 @@ from sim_nodes.draws import (LATENCY, MISMATCH, ON, PUSHES, command, episode_key
                              start_episode)
 from sim_nodes.goal import goal_delta
 from sim_nodes.jit import kernel
-from sim_nodes.models.dispatch import step_lanes
+from sim_nodes.models.dispatch import step_lanes, step_lanes_each
 
 LANES = 16           # episodes side by side in one thread (two 8-wide vectors)
 BLOCKS_PER_THREAD = 4  # shares of a batch per thread, for load balance
@@ -81,7 +81,9 @@ def run_share(model, style, ex, ex2, act, val, lengths, first, stop, s0, p, inv_
     fail = not np.isnan(fail_charge)          # an end-stop contact ends the episode
     own_params = disturbed and dist[MISMATCH] > 0.0   # each lane steps its own plant
     obs = np.empty((dim, LANES))                # what the selector sees
-    plant = np.empty((LANES, p.shape[0]))      # each lane's plant parameters
+    plant = np.empty((LANES, p.shape[0]))      # each lane's plant parameters (idle: p)
+    for lane in range(LANES):
+        plant[lane] = p
     n_push = int(dist[PUSHES]) if disturbed else 0
     push_at = np.zeros((LANES, n_push), dtype=np.int64)
     push_dv = np.zeros((LANES, n_push))
@@ -89,9 +91,6 @@ def run_share(model, style, ex, ex2, act, val, lengths, first, stop, s0, p, inv_
     history = np.zeros((LANES, (int(dist[LATENCY]) if disturbed else 0) + 1))
     gain = np.ones(LANES)
     key = np.zeros(LANES, dtype=np.uint64)
-    s1 = np.empty((dim, 1))
-    a1 = np.empty(1)
-    r1 = np.empty(1)
     for lane in range(LANES):
         S[:, lane] = s0
     nxt = first
@@ -145,14 +144,8 @@ def run_share(model, style, ex, ex2, act, val, lengths, first, stop, s0, p, inv_
                 if trace and k == 0:
                     tr_idx[steps[k]] = j
                     tr_act[steps[k]] = a[lane]
-        if own_params:                          # mismatched plants: one lane at a time
-            for lane in range(LANES):
-                if pol[lane] >= 0:
-                    s1[:, 0] = S[:, lane]
-                    a1[0] = a[lane]
-                    step_lanes(model, s1, a1, plant[lane], 1, r1)
-                    S[:, lane] = s1[:, 0]
-                    r[lane] = r1[0]
+        if own_params:                          # mismatched plants: lane k with plant[k]
+            step_lanes_each(model, S, a, plant, S.shape[1], r)
         else:
             step_lanes(model, S, a, p, S.shape[1], r)  # not the literal LANES: keeps a loop
         for lane in range(LANES):

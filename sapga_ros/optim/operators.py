@@ -22,6 +22,14 @@ def random_exemplars(problem: Problem, count: int, rng: np.random.Generator,
     """``count`` random exemplar records of ``style``: states uniform over
     [low, high), action indices uniform, values uniform over an episode's return range.
     Drawn field by field in the order state, state2, action, value."""
+    states, states2, actions, values = _draw(problem, count, rng, style)
+    return ExemplarPolicy(problem, states, actions, style=style, values=values,
+                          states2=states2)
+
+
+def _draw(problem: Problem, count: int, rng: np.random.Generator, style: str) -> tuple:
+    """``random_exemplars``' draws: (states, states2, actions, values), None for a field
+    the style does not use; angles not yet wrapped."""
     spec = style_named(style)
     states = rng.uniform(problem.low, problem.high, size=(count, problem.dim))
     states2 = actions = values = None
@@ -31,8 +39,7 @@ def random_exemplars(problem: Problem, count: int, rng: np.random.Generator,
         actions = rng.integers(0, len(problem.actions), size=count)
     if spec.uses('value'):
         values = rng.uniform(*problem.return_range, size=count)
-    return ExemplarPolicy(problem, states, actions, style=style, values=values,
-                          states2=states2)
+    return states, states2, actions, values
 
 
 def random_policy(problem: Problem, rng: np.random.Generator, l_min: int,
@@ -93,30 +100,39 @@ def uniform_crossover(p1: ExemplarPolicy, p2: ExemplarPolicy, rng: np.random.Gen
         if l_min <= len(first) <= l_max:
             first.sort()
             return union.subset(chosen[first]), False
+    return repair(union, l_min, l_max, rng), True
+
+
+def repair(union: ExemplarPolicy, l_min: int, l_max: int,
+           rng: np.random.Generator) -> ExemplarPolicy:
+    """A child of legal size from its parents' deduplicated ``union`` (``uniform_crossover``
+    after ``max_tries`` failed attempts)."""
     size = int(rng.integers(l_min, l_max + 1))
     if len(union) >= l_min:
         size = min(size, len(union))
-        return union.subset(np.sort(rng.choice(len(union), size=size, replace=False))), True
-    extra = random_exemplars(p1.problem, size - len(union), rng, p1.style)
-    return concat_policies([union, extra]), True
+        return union.subset(np.sort(rng.choice(len(union), size=size, replace=False)))
+    extra = random_exemplars(union.problem, size - len(union), rng, union.style)
+    return concat_policies([union, extra])
 
 
 def refresh(policy: ExemplarPolicy, used: np.ndarray, rng: np.random.Generator,
             rate: tuple[float, float] = (0.0, 0.5)) -> tuple[ExemplarPolicy, int]:
     """A clone of ``policy`` with lazy exemplars re-drawn; and how many were re-drawn.
 
-    ``used`` marks the exemplars referred to in the policy's last evaluation.
+    ``used`` marks the exemplars referred to in the policy's last evaluation.  The fresh
+    records are ``random_exemplars``' draws.
     """
     r = rng.uniform(*rate)                                        # refresh rate
     redraw = ~used & (rng.random(len(policy)) < r)                # lazy, with prob r
-    count = int(redraw.sum())
-    clone = ExemplarPolicy(policy.problem, policy.states.copy(), policy.actions.copy(),
-                           style=policy.style, values=policy.values.copy(),
-                           states2=policy.states2.copy())
+    count = int(np.count_nonzero(redraw))
+    clone = ExemplarPolicy.of_valid(policy.problem, policy.states.copy(),
+                                    policy.actions.copy(), policy.style,
+                                    policy.values.copy(), policy.states2.copy())
     if count:
-        fresh = random_exemplars(policy.problem, count, rng, policy.style)
-        clone.states[redraw] = fresh.states
-        clone.states2[redraw] = fresh.states2
-        clone.actions[redraw] = fresh.actions
-        clone.values[redraw] = fresh.values
+        states, states2, actions, values = _draw(policy.problem, count, rng, policy.style)
+        clone.states[redraw] = policy._wrapped(states)
+        if states2 is not None:
+            clone.states2[redraw] = policy._wrapped(states2)
+        clone.actions[redraw] = 0 if actions is None else actions   # a style's unused
+        clone.values[redraw] = 0.0 if values is None else values    # fields: zeros
     return clone, count

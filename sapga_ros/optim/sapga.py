@@ -22,8 +22,8 @@ from sapga_ros.errors import CheckpointError, ConfigError
 from sapga_ros.policies.exemplar import ExemplarPolicy
 from sapga_ros.policies.styles import STYLES
 from sapga_ros.optim.base import Optimizer, Result, State
-from sapga_ros.optim.operators import (parents_union, random_policy, refresh,
-                                       uniform_crossover)
+from sapga_ros.optim.generation import compact, crossovers, refreshes
+from sapga_ros.optim.operators import random_policy
 from sapga_ros.optim.population import Individual, pack, unpack
 from sim_nodes.params import check, param
 from sim_nodes.problem import Problem
@@ -133,19 +133,18 @@ class SapGA(Optimizer):
         if self._families is not None:
             raise RuntimeError('ask() called twice without tell()')
         p = self.params
-        order = self.rng.permutation(p.n_pop)                     # random couples
+        order = self.rng.permutation(p.n_pop).tolist()            # random couples
+        pop = self.population
+        couples = [(order[2 * f], order[2 * f + 1]) for f in range(p.n_pop // 2)]
+        kids, repaired = crossovers([(pop[i].policy, pop[j].policy) for i, j in couples],
+                                    self.rng, p.n_child, p.l_min, p.l_max, p.crossover_rate,
+                                    p.max_tries)                  # = uniform_crossover each
+        self.stats.repairs += repaired
         families = []
         pending = []
-        for f in range(p.n_pop // 2):
-            i, j = int(order[2 * f]), int(order[2 * f + 1])
-            members = [self.population[i], self.population[j]]
-            union = parents_union(members[0].policy, members[1].policy)
-            for _ in range(p.n_child):
-                child, repaired = uniform_crossover(
-                    members[0].policy, members[1].policy, self.rng, p.l_min, p.l_max,
-                    p.crossover_rate, p.max_tries, union)
-                self.stats.repairs += repaired
-                members.append(Individual(child))
+        for f, (i, j) in enumerate(couples):
+            members = [pop[i], pop[j]]
+            members.extend(Individual(kid) for kid in kids[f * p.n_child:(f + 1) * p.n_child])
             pending.extend(m for m in members if not m.known)
             families.append((i, j, members))
         self._families, self._pending = families, pending
@@ -160,29 +159,34 @@ class SapGA(Optimizer):
             raise RuntimeError('tell() needs the results of the last ask(), in order')
         st = self.stats
         rank = self._rank
-        for k, m in enumerate(self._pending):
-            value = float(returns[k])
+        columns = zip(self._pending, np.asarray(returns, dtype=float).tolist(),
+                      np.asarray(delta_star, dtype=float).tolist(),
+                      np.asarray(steps).tolist(), np.asarray(reached).tolist(), used)
+        for m, value, d, n, hit, marks in columns:
             m.value = value if math.isfinite(value) else -math.inf  # NaN ranks worst
-            m.delta_star = float(delta_star[k])
-            m.steps = int(steps[k])
-            m.reached = bool(reached[k])
-            m.used = used[k]
+            m.delta_star = d
+            m.steps = int(n)
+            m.reached = bool(hit)
+            m.used = marks
             st.steps += m.steps
             st.evaluations += 1
             st.delta_star = min(st.delta_star, m.delta_star)
             st.best_value = max(st.best_value, m.value)
             if self.best is None or rank(m) > rank(self.best):
                 self.best = m
+        stars = []
         for i, j, members in self._families:
             if self.params.variant in ('child-ties', 'dstar-child'):
                 members = members[2:] + members[:2]               # children first
-            star = max(members, key=rank)                         # pi*, first of equals
-            clone, count = refresh(star.policy, star.used, self.rng, self.params.refresh_rate)
+            stars.append(max(members, key=rank))                  # pi*, first of equals
+        clones = refreshes(stars, self.rng, self.params.refresh_rate)  # = refresh each
+        for (i, j, _), star, (clone, count) in zip(self._families, stars, clones):
             st.refreshed += count
             twin = Individual(clone)
             if count == 0:                                        # unchanged: value known
                 twin = Individual(clone, star.value, star.delta_star, star.steps,
                                   star.reached, star.used)
+            star.policy = compact(star.policy)      # a child: arrays of its own
             self.population[i] = star
             self.population[j] = twin
         st.generation += 1

@@ -88,6 +88,24 @@ def rk4_substep(t1, t2, w1, w2, tau, dt, k):
             w2 + c * (k1a2 + 2.0 * k2a2 + 2.0 * k3a2 + k4a2))
 
 
+@kernel(inline='always')
+def substep_lane(S, k, tau, dt, max_w1, max_w2, consts):
+    """One RK4 substep of lane k of S holding torque tau; angles wrapped, velocities
+    clipped."""
+    t1, t2, w1, w2 = rk4_substep(S[0, k], S[1, k], S[2, k], S[3, k], tau, dt, consts)
+    S[0, k] = wrap_angle(t1)
+    S[1, k] = wrap_angle(t2)
+    S[2, k] = clip(w1, -max_w1, max_w1)
+    S[3, k] = clip(w2, -max_w2, max_w2)
+
+
+@kernel(inline='always')
+def rewards(S, n, reward):
+    """reward[k] = tip height - 3 of lanes 0..n-1."""
+    for k in range(n):
+        reward[k] = sin(S[0, k]) + sin(S[0, k] + S[1, k]) - 3.0
+
+
 @kernel
 def mdp_step_lanes(S, tau, p, n, reward):
     """Advance columns 0..n-1 of S (4, W) by one MDP step, each holding torque tau[k] [N m].
@@ -99,13 +117,25 @@ def mdp_step_lanes(S, tau, p, n, reward):
     consts = constants(p)
     for _ in range(int(p[SUBSTEPS])):
         for k in range(n):
-            t1, t2, w1, w2 = rk4_substep(S[0, k], S[1, k], S[2, k], S[3, k], tau[k], dt, consts)
-            S[0, k] = wrap_angle(t1)
-            S[1, k] = wrap_angle(t2)
-            S[2, k] = clip(w1, -max_w1, max_w1)
-            S[3, k] = clip(w2, -max_w2, max_w2)
+            substep_lane(S, k, tau[k], dt, max_w1, max_w2, consts)
+    rewards(S, n, reward)
+
+
+@kernel
+def mdp_step_lanes_each(S, tau, P, n, reward):
+    """``mdp_step_lanes`` with lane k's own parameters, row k of P (W, 12) (a mismatched
+    plant per episode); dt and substeps of row 0 (never mismatched).  Each lane computes
+    what ``mdp_step_lanes`` computes with P[k]."""
+    dt = P[0, DT]
+    C = np.empty((10, n))                  # lane k's constants in column k: loads vectorise
     for k in range(n):
-        reward[k] = sin(S[0, k]) + sin(S[0, k] + S[1, k]) - 3.0  # tip height - 3
+        C[:8, k] = constants(P[k])
+        C[8, k], C[9, k] = P[k, MAX_W1], P[k, MAX_W2]
+    for _ in range(int(P[0, SUBSTEPS])):
+        for k in range(n):
+            substep_lane(S, k, tau[k], dt, C[8, k], C[9, k], (
+                C[0, k], C[1, k], C[2, k], C[3, k], C[4, k], C[5, k], C[6, k], C[7, k]))
+    rewards(S, n, reward)
 
 
 @kernel

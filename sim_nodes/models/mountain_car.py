@@ -27,18 +27,36 @@ def pack_params(problem) -> np.ndarray:
     return pack_physics(problem, PARAMS)
 
 
+@kernel(inline='always')
+def substep_lane(S, k, throttle, power, gravity, x_min, x_max, v_max):
+    """One substep of lane k of S; the left wall stops the car."""
+    v = clip(S[1, k] + power * throttle - gravity * cos(3.0 * S[0, k]), -v_max, v_max)
+    x = S[0, k] + v
+    wall = x < x_min
+    S[0, k] = clip(x, x_min, x_max)
+    S[1, k] = 0.0 if wall else v
+
+
 @kernel
 def mdp_step_lanes(S, throttle, p, n, reward):
     """Advance columns 0..n-1 of S (2, W) by one MDP step, each with throttle[k]."""
     power, gravity, x_min, x_max, v_max = p[POWER], p[GRAVITY], p[X_MIN], p[X_MAX], p[V_MAX]
     for _ in range(int(p[SUBSTEPS])):
         for k in range(n):
-            v = clip(S[1, k] + power * throttle[k] - gravity * cos(3.0 * S[0, k]), -v_max,
-                     v_max)
-            x = S[0, k] + v
-            wall = x < x_min
-            S[0, k] = clip(x, x_min, x_max)
-            S[1, k] = 0.0 if wall else v
+            substep_lane(S, k, throttle[k], power, gravity, x_min, x_max, v_max)
+    for k in range(n):
+        reward[k] = -1.0
+
+
+@kernel
+def mdp_step_lanes_each(S, throttle, P, n, reward):
+    """``mdp_step_lanes`` with lane k's own parameters, row k of P (W, 7); substeps of
+    row 0 (never mismatched)."""
+    Q = np.ascontiguousarray(P[:n].T)      # lane k's parameters in column k: loads vectorise
+    for _ in range(int(P[0, SUBSTEPS])):
+        for k in range(n):
+            substep_lane(S, k, throttle[k], Q[POWER, k], Q[GRAVITY, k], Q[X_MIN, k],
+                         Q[X_MAX, k], Q[V_MAX, k])
     for k in range(n):
         reward[k] = -1.0
 

@@ -41,6 +41,44 @@ def pack_params(problem) -> np.ndarray:
     return pack_physics(problem, PARAMS)
 
 
+@kernel(inline='always')
+def substep_lane(S, k, force, dt, g, m0, m1, m2, l1, l2, x_max, v_max, w_max, rail, reward):
+    """One substep of lane k of S holding ``force``; reward[k] becomes ``rail`` on a rail
+    contact."""
+    x, v, t1, t2, w1, w2 = S[0, k], S[1, k], S[2, k], S[3, k], S[4, k], S[5, k]
+    s1, c1 = sincos(t1)
+    s2, c2 = sincos(t2)
+    a = ((g * (m1 * s1 * c1 + m2 * s2 * c2)
+          - 4.0 / 3.0 * (force + m1 * l1 * w1 * w1 * c1 + m2 * l2 * w2 * w2 * c2))
+         / (m1 * s1 * s1 + m2 * s2 * s2 - 4.0 / 3.0 * (m0 + m1 + m2)))  # car accel.
+    w1 = w1 + (a * s1 - g * c1) / (4.0 / 3.0 * l1) * dt
+    w2 = w2 + (a * s2 - g * c2) / (4.0 / 3.0 * l2) * dt
+    t1 = t1 + w1 * dt
+    t2 = t2 + w2 * dt
+    v = v + a * dt
+    x = x + v * dt
+    # after the substep's updates: wrap, clip, then the rail
+    S[2, k] = wrap_angle(t1)
+    S[3, k] = wrap_angle(t2)
+    S[4, k] = clip(w1, -w_max, w_max)
+    S[5, k] = clip(w2, -w_max, w_max)
+    xc = clip(x, -x_max, x_max)
+    hit = xc != x
+    S[0, k] = xc
+    S[1, k] = 0.0 if hit else clip(v, -v_max, v_max)
+    # rail penalty once per MDP step: reward[k] is 0 or rail, and becomes rail on a
+    # hit.  Stored unconditionally: the masked store of ``rail if hit else
+    # reward[k]`` kept the loop from vectorising (5 M vs 24 M lane-steps/s)
+    reward[k] += (rail - reward[k]) * hit
+
+
+@kernel(inline='always')
+def heights(S, n, reward):
+    """reward[k] += pole heights - 3 of lanes 0..n-1."""
+    for k in range(n):
+        reward[k] += sin(S[2, k]) + sin(S[3, k]) - 3.0
+
+
 @kernel
 def mdp_step_lanes(S, force, p, n, reward):
     """Advance columns 0..n-1 of S (6, W) by one MDP step, each holding force[k] [N].
@@ -54,33 +92,24 @@ def mdp_step_lanes(S, force, p, n, reward):
         reward[k] = 0.0
     for _ in range(int(p[SUBSTEPS])):
         for k in range(n):
-            x, v, t1, t2, w1, w2 = S[0, k], S[1, k], S[2, k], S[3, k], S[4, k], S[5, k]
-            s1, c1 = sincos(t1)
-            s2, c2 = sincos(t2)
-            a = ((g * (m1 * s1 * c1 + m2 * s2 * c2)
-                  - 4.0 / 3.0 * (force[k] + m1 * l1 * w1 * w1 * c1 + m2 * l2 * w2 * w2 * c2))
-                 / (m1 * s1 * s1 + m2 * s2 * s2 - 4.0 / 3.0 * (m0 + m1 + m2)))  # car accel.
-            w1 = w1 + (a * s1 - g * c1) / (4.0 / 3.0 * l1) * dt
-            w2 = w2 + (a * s2 - g * c2) / (4.0 / 3.0 * l2) * dt
-            t1 = t1 + w1 * dt
-            t2 = t2 + w2 * dt
-            v = v + a * dt
-            x = x + v * dt
-            # after the substep's updates: wrap, clip, then the rail
-            S[2, k] = wrap_angle(t1)
-            S[3, k] = wrap_angle(t2)
-            S[4, k] = clip(w1, -w_max, w_max)
-            S[5, k] = clip(w2, -w_max, w_max)
-            xc = clip(x, -x_max, x_max)
-            hit = xc != x
-            S[0, k] = xc
-            S[1, k] = 0.0 if hit else clip(v, -v_max, v_max)
-            # rail penalty once per MDP step: reward[k] is 0 or rail, and becomes rail on a
-            # hit.  Stored unconditionally: the masked store of ``rail if hit else
-            # reward[k]`` kept the loop from vectorising (5 M vs 24 M lane-steps/s)
-            reward[k] += (rail - reward[k]) * hit
+            substep_lane(S, k, force[k], dt, g, m0, m1, m2, l1, l2, x_max, v_max, w_max, rail,
+                         reward)
+    heights(S, n, reward)
+
+
+@kernel
+def mdp_step_lanes_each(S, force, P, n, reward):
+    """``mdp_step_lanes`` with lane k's own parameters, row k of P (W, 12) (a mismatched
+    plant per episode); dt and substeps of row 0 (never mismatched)."""
+    dt = P[0, DT]
+    Q = np.ascontiguousarray(P[:n].T)      # lane k's parameters in column k: loads vectorise
     for k in range(n):
-        reward[k] += sin(S[2, k]) + sin(S[3, k]) - 3.0  # pole heights - 3 (+ penalty)
+        reward[k] = 0.0
+    for _ in range(int(P[0, SUBSTEPS])):
+        for k in range(n):
+            substep_lane(S, k, force[k], dt, Q[G, k], Q[M0, k], Q[M1, k], Q[M2, k], Q[L1, k],
+                         Q[L2, k], Q[X_MAX, k], Q[V_MAX, k], Q[W_MAX, k], Q[RAIL, k], reward)
+    heights(S, n, reward)
 
 
 @kernel

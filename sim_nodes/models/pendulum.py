@@ -57,6 +57,14 @@ def rk4_substep(t, w, tau, dt, inv_ml2, mgl, b):
     return t + c * (w + 2.0 * w2 + 2.0 * w3 + w4), w + c * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
 
 
+@kernel(inline='always')
+def substep_lane(S, k, tau, dt, inv_ml2, mgl, b, max_w):
+    """One RK4 substep of lane k of S; the angle wrapped, the velocity clipped."""
+    t, w = rk4_substep(S[0, k], S[1, k], tau, dt, inv_ml2, mgl, b)
+    S[0, k] = wrap_angle(t)
+    S[1, k] = clip(w, -max_w, max_w)
+
+
 @kernel
 def mdp_step_lanes(S, tau, p, n, reward):
     """Advance columns 0..n-1 of S (2, W) by one MDP step, each holding torque tau[k] [N m].
@@ -69,9 +77,24 @@ def mdp_step_lanes(S, tau, p, n, reward):
     mgl = p[M] * p[G] * p[L]
     for _ in range(int(p[SUBSTEPS])):
         for k in range(n):
-            t, w = rk4_substep(S[0, k], S[1, k], tau[k], dt, inv_ml2, mgl, b)
-            S[0, k] = wrap_angle(t)
-            S[1, k] = clip(w, -max_w, max_w)
+            substep_lane(S, k, tau[k], dt, inv_ml2, mgl, b, max_w)
+    for k in range(n):
+        reward[k] = sin(S[0, k]) - 1.0
+
+
+@kernel
+def mdp_step_lanes_each(S, tau, P, n, reward):
+    """``mdp_step_lanes`` with lane k's own parameters, row k of P (W, 7) (a mismatched
+    plant per episode); dt and substeps of row 0 (never mismatched)."""
+    dt = P[0, DT]
+    C = np.empty((4, n))                   # lane k's constants in column k: loads vectorise
+    for k in range(n):
+        C[0, k] = 1.0 / (P[k, M] * P[k, L] * P[k, L])
+        C[1, k] = P[k, M] * P[k, G] * P[k, L]
+        C[2, k], C[3, k] = P[k, B], P[k, MAX_W]
+    for _ in range(int(P[0, SUBSTEPS])):
+        for k in range(n):
+            substep_lane(S, k, tau[k], dt, C[0, k], C[1, k], C[2, k], C[3, k])
     for k in range(n):
         reward[k] = sin(S[0, k]) - 1.0
 
