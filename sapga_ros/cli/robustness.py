@@ -15,7 +15,6 @@ import argparse
 from pathlib import Path
 
 from sapga_ros.cli.args import check_output_dir, episode_steps, nonneg_int
-from sapga_ros.io.jsonfile import write_json
 
 PROFILES = ('sensor', 'latency', 'mismatch', 'push', 'field')
 
