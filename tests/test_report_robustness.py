@@ -57,7 +57,7 @@ def test_report_draws_each_rows_curves_from_its_returned_policies(hold_dir, caps
         at0 = [p for p in points
                if (p['experiment'], p['run_seed'], p['scale']) == (e, seed, 0.0)]
         assert all(p['success_rate'] == float(hold >= 0.9) for p in at0)
-    assert '## Robustness' in report and '| #5 classical | 2 | 1.00' in report
+    assert '## Robustness' in report and '| #5 classical (acrobot_hold) | 2 | 1.00' in report
     for name in ('robustness_push.png', 'robustness_latency.png'):
         assert f']({name})' in report and (out / name).stat().st_size > 1000
 

@@ -42,7 +42,7 @@ def _label(s: dict) -> str:
         parts.append('+ catch')
     if s.get('disturbance', 'none') != 'none':
         parts.append(f"robust ({s['disturbance']})")
-    return ' '.join(parts)
+    return ' '.join(parts) + f" ({s['problem']})"
 
 
 def _row_points(out: Path, s: dict, profiles: list, settings: CurveSettings,
