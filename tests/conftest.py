@@ -5,12 +5,26 @@ fixture of the same name in a module overrides the one here).
 """
 from __future__ import annotations
 
+from typing import Iterator
+
 import numpy as np
 import pytest
 
+from domains import ros_domain
 from sim_nodes.problem import Problem, load_problem
 
 SEED = 20240521  # every random draw of the suite starts here: a failure reproduces
+
+
+@pytest.fixture(scope='session', autouse=True)
+def own_ros_domain() -> Iterator[int]:
+    """A ROS domain of this test process (each pytest-xdist worker has its own) and
+    localhost-only discovery, for anything that starts ROS without claiming a domain of its
+    own: parallel workers never hear each other's nodes."""
+    with ros_domain() as domain, pytest.MonkeyPatch.context() as patch:
+        patch.setenv('ROS_DOMAIN_ID', str(domain))
+        patch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+        yield domain
 
 
 @pytest.fixture(scope='session')
