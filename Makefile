@@ -43,7 +43,7 @@ $(WARM): $(STAMP) sim_nodes/jit.py $(KERNELS)
 demo: $(WARM)
 	$(PY) -m sapga_ros.cli.demo --out $(OUT)
 
-# ~1050 tests; measured 5-6 min on 2 cores with TEST_JOBS=2 (README.md, "Tests")
+# ~1050 tests in TEST_JOBS pytest-xdist workers (README.md says what it took, measured)
 test: $(WARM)
 	$(PY) -m pytest -q -n $(TEST_JOBS) --dist worksteal tests
 

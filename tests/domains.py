@@ -93,3 +93,49 @@ def ros_domain() -> Iterator[int]:
         yield domain
     finally:
         release_domain(domain)
+
+
+_RUN_FD: int | None = None   # this worker's descriptor of its test run's lock file
+
+
+def _run_lock() -> int | None:
+    """This xdist test run's lock file, opened once per worker (None without xdist)."""
+    global _RUN_FD
+    run = os.environ.get('PYTEST_XDIST_TESTRUNUID')
+    if not run:
+        return None
+    if _RUN_FD is None:
+        LOCK_DIR.mkdir(parents=True, exist_ok=True)
+        _RUN_FD = os.open(LOCK_DIR / f'run-{run}.lock', os.O_RDWR | os.O_CREAT, 0o666)
+    return _RUN_FD
+
+
+@contextlib.contextmanager
+def among_others() -> Iterator[None]:
+    """Held (shared) by every test of a parallel run while it runs: see ``alone``."""
+    fd = _run_lock()
+    if fd is None:
+        yield
+        return
+    fcntl.flock(fd, fcntl.LOCK_SH)
+    try:
+        yield
+    finally:
+        fcntl.flock(fd, fcntl.LOCK_UN)
+
+
+@contextlib.contextmanager
+def alone() -> Iterator[None]:
+    """Inside a test: wait until the other workers' tests have finished and hold theirs
+    back meanwhile.  For the recorded lockstep launches, whose recorder must keep up with
+    a simulator stepping as fast as the policy answers: a launch beside another worker's
+    training or launch on 2 cores drops markers and its bag is (rightly) incomplete."""
+    fd = _run_lock()
+    if fd is None:
+        yield
+        return
+    fcntl.flock(fd, fcntl.LOCK_EX)      # from the test's shared lock (released first)
+    try:
+        yield
+    finally:
+        fcntl.flock(fd, fcntl.LOCK_SH)
