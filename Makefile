@@ -14,6 +14,9 @@ export PYTHONDONTWRITEBYTECODE := 1
 # entry by the source file's path and time, so every checkout compiles once, here in
 # `make venv` (sapga_ros.training.warm), not in the first command
 OUT ?= out
+# pytest-xdist workers of `make test` / `make test-long`: each test process claims its own
+# ROS domains (tests/domains.py), so workers never hear each other
+TEST_JOBS ?= 2
 
 .PHONY: demo test test-long bench venv clean
 
@@ -40,13 +43,14 @@ $(WARM): $(STAMP) sim_nodes/jit.py $(KERNELS)
 demo: $(WARM)
 	$(PY) -m sapga_ros.cli.demo --out $(OUT)
 
+# ~1050 tests in TEST_JOBS pytest-xdist workers (README.md says what it took, measured)
 test: $(WARM)
-	$(PY) -m pytest -q tests
+	$(PY) -m pytest -q -n $(TEST_JOBS) --dist worksteal tests
 
 # the tests marked long (minutes each: 10 recorded launches, the Ray backend, a 60 M-step
 # run killed after 40 s); `make test` runs a smaller form of the first and skips the others
 test-long: $(WARM)
-	$(PY) -m pytest -q --long -m long tests
+	$(PY) -m pytest -q -n $(TEST_JOBS) --dist worksteal --long -m long tests
 
 bench: $(WARM)
 	$(VENV)/bin/sapga bench

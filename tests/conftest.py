@@ -5,12 +5,34 @@ fixture of the same name in a module overrides the one here).
 """
 from __future__ import annotations
 
+from typing import Iterator
+
 import numpy as np
 import pytest
 
+from domains import among_others, ros_domain
 from sim_nodes.problem import Problem, load_problem
 
 SEED = 20240521  # every random draw of the suite starts here: a failure reproduces
+
+
+@pytest.fixture(scope='session', autouse=True)
+def own_ros_domain() -> Iterator[int]:
+    """A ROS domain of this test process (each pytest-xdist worker has its own) and
+    localhost-only discovery, for anything that starts ROS without claiming a domain of its
+    own: parallel workers never hear each other's nodes."""
+    with ros_domain() as domain, pytest.MonkeyPatch.context() as patch:
+        patch.setenv('ROS_DOMAIN_ID', str(domain))
+        patch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+        yield domain
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None):
+    """Each test of a parallel run, fixtures set up and torn down included, holds the run's
+    shared lock, so a recorded launch (``domains.alone``) can wait for the other workers."""
+    with among_others():
+        return (yield)
 
 
 @pytest.fixture(scope='session')

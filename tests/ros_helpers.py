@@ -1,6 +1,7 @@
 """Fixtures and helpers for tests that run real rclpy nodes over real Fast DDS.
 
-Each test gets its own ROS 2 domain (a free ``ROS_DOMAIN_ID``, discovery limited to
+Each test gets its own ROS 2 domain (a ``ROS_DOMAIN_ID`` claimed with a lock,
+tests/domains.py, so parallel test processes never share one; discovery limited to
 localhost) and its own ``rclpy.Context``, so tests, and other people's test runs on the
 same machine, never hear each other.  Nodes made with ``RosHarness.start`` spin on one
 background executor thread; ``RosHarness.spawn`` runs the package's executables as child
@@ -21,9 +22,7 @@ from __future__ import annotations
 import ctypes
 import json
 import os
-import random
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -42,6 +41,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, Int32, String
 from std_srvs.srv import Trigger
 
+from domains import ros_domain
 from sim_nodes.ros.commands import StampedCommand
 from sim_nodes.ros.common import EVENT_QOS, MessageError, stamp_ns, topic_names
 from sim_nodes.problem import Problem
@@ -49,26 +49,6 @@ from sim_nodes.problem import Problem
 WAIT_S = 30.0  # [s] generous bound for any single wait: a failing test, not a timing check
 # Keep every sample in tests: readers must not lose a state if the test thread is slow.
 PROBE_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
-
-
-def _port_free(port: int) -> bool:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
-        try:
-            sock.bind(('', port))
-        except OSError:
-            return False
-    return True
-
-
-def free_domain_id() -> int:
-    """A random ROS domain whose first Fast DDS participant port nobody on this host uses."""
-    rng = random.Random(os.getpid() * 1_000_003 + time.monotonic_ns())
-    for _ in range(200):
-        domain = rng.randint(1, 200)
-        base = 7400 + 250 * domain  # RTPS port mapping: PB + DG * domain
-        if all(_port_free(base + offset) for offset in (0, 1, 10, 11, 12, 13)):
-            return domain
-    raise RuntimeError('no free ROS domain id found')
 
 
 def _die_with_parent() -> None:
@@ -191,14 +171,14 @@ class RosHarness:
 
 def isolated_ros(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> Iterator[RosHarness]:
     """Body of a ``ros`` fixture: an isolated ROS 2 domain for one test (``RosHarness``)."""
-    domain = free_domain_id()
-    monkeypatch.setenv('ROS_DOMAIN_ID', str(domain))
-    monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-    harness = RosHarness(domain, tmp_path)
-    try:
-        yield harness
-    finally:
-        harness.close()
+    with ros_domain() as domain:
+        monkeypatch.setenv('ROS_DOMAIN_ID', str(domain))
+        monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+        harness = RosHarness(domain, tmp_path)
+        try:
+            yield harness
+        finally:
+            harness.close()
 
 
 class Probe(Node):

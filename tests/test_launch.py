@@ -17,7 +17,8 @@ import pytest
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
-from ros_helpers import executable, free_domain_id
+from domains import alone, ros_domain
+from ros_helpers import executable
 from sapga_ros.cli import main as cli
 from sapga_ros.launch import run_launch
 from sapga_ros.launch.supervisor import ChildExited, Supervisor, exit_code
@@ -122,12 +123,14 @@ def test_unknown_launches_and_bad_policy_files_are_refused_before_any_node_start
 # end to end over real nodes -------------------------------------------------------------
 
 def launch(args: list[str], tmp_path: Path) -> subprocess.CompletedProcess:
-    """Run ``sapga launch ...`` in a ROS domain of its own; fail with its output on error."""
-    env = dict(os.environ, ROS_DOMAIN_ID=str(free_domain_id()),
-               ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', PYTHONUNBUFFERED='1')
-    done = subprocess.run([str(executable('sapga')), 'launch', *args], env=env, cwd=tmp_path,
-                          stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                          timeout=LAUNCH_TIMEOUT_S)
+    """Run ``sapga launch ...`` in a ROS domain of its own, alone among parallel test
+    workers (tests/domains.py); fail with its output on error."""
+    with alone(), ros_domain() as domain:
+        env = dict(os.environ, ROS_DOMAIN_ID=str(domain),
+                   ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', PYTHONUNBUFFERED='1')
+        done = subprocess.run([str(executable('sapga')), 'launch', *args], env=env,
+                              cwd=tmp_path, stdout=subprocess.PIPE,
+                              stderr=subprocess.STDOUT, text=True, timeout=LAUNCH_TIMEOUT_S)
     assert done.returncode == 0, done.stdout[-4000:]
     return done
 

@@ -17,7 +17,8 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float64, String
 from std_srvs.srv import Trigger
 
-from ros_helpers import PROBE_QOS, Probe, free_domain_id, new_node
+from domains import claim_domain, release_domain
+from ros_helpers import PROBE_QOS, Probe, new_node
 from sapga_ros.policies.exemplar import ExemplarPolicy
 from sapga_ros.nodes.policy_node import PolicyNode
 from sapga_ros.nodes.recorder_node import RecorderNode
@@ -34,7 +35,7 @@ class Guarded:
     """Nodes of one context spun by ``spin_guarded`` on a thread, as the executables spin."""
 
     def __init__(self, monkeypatch: pytest.MonkeyPatch) -> None:
-        domain = free_domain_id()
+        self.domain = domain = claim_domain()
         monkeypatch.setenv('ROS_DOMAIN_ID', str(domain))
         monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
         self.context = rclpy.Context()
@@ -63,6 +64,7 @@ class Guarded:
         self.context.try_shutdown()
         if self.thread is not None:
             self.thread.join(timeout=5.0)
+        release_domain(self.domain)
 
 
 @pytest.fixture

@@ -18,6 +18,7 @@ from rcl_interfaces.msg import Parameter as ParameterMsg, ParameterType, Paramet
 from rcl_interfaces.srv import GetParameters, SetParameters
 from rclpy.parameter import Parameter
 
+from process_helpers import sapga_in_process
 from ros_helpers import isolated_ros
 from sapga_ros.errors import ConfigError
 from sapga_ros.policies.kinds import policy_delta
@@ -53,8 +54,9 @@ def ros(monkeypatch, tmp_path):
 
 
 def sapga(*args: str, cwd: Path) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, '-m', 'sapga_ros.cli.main', *args], cwd=cwd,
-                          capture_output=True, text=True, timeout=120)
+    """`sapga ARGS` in ``cwd``, its main called in this process (the node executables below
+    run as processes; test_cli.py runs `sapga train` as one)."""
+    return sapga_in_process(list(args), cwd=cwd)
 
 
 def params_file(tmp_path: Path, values: dict) -> Path:

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 import yaml
 
+from domains import ros_domain
 from sapga_ros.errors import ConfigError
 from sim_nodes.goal import delta_of
 from sim_nodes.problem import config_dir, load_problem, parse_problem
@@ -145,10 +146,11 @@ def test_the_simulator_node_refuses_a_bad_ros_section_in_one_line(tmp_path):
     """The simulator executable with a problem whose ros.topics holds a bad name: exit 2
     and one line, not a crash in rclpy."""
     env = _conf(tmp_path, lambda d: d['ros']['topics'].update(state='bad name!'))
-    env['ROS_DOMAIN_ID'] = str(100 + os.getpid() % 100)
-    done = subprocess.run([sys.executable, '-m', 'sim_nodes.ros.sim_node', '--ros-args',
-                           '-p', 'problem:=acrobot'], capture_output=True, text=True,
-                          timeout=120, env=env)
+    with ros_domain() as domain:
+        env.update(ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+        done = subprocess.run([sys.executable, '-m', 'sim_nodes.ros.sim_node', '--ros-args',
+                               '-p', 'problem:=acrobot'], capture_output=True, text=True,
+                              timeout=120, env=env)
     assert done.returncode == 2, done.stderr
     assert 'Traceback' not in done.stderr and 'ros.topics.state' in done.stderr
     assert np.sum([('ros.topics.state' in line) for line in done.stderr.splitlines()]) == 1

@@ -33,7 +33,7 @@ from std_msgs.msg import Float64, Int32, String
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
-from ros_helpers import free_domain_id
+from domains import ros_domain
 from sapga_ros.recording.reader import decode_messages, read_recording
 from sapga_ros.recording.schemas import SEPARATOR, message_definition, share_dirs
 
@@ -48,15 +48,10 @@ EVENT_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
 @pytest.fixture(scope='module')
 def ros_env():
     """A domain of its own and localhost-only discovery, for this process and children."""
-    saved = {k: os.environ.get(k) for k in ('ROS_AUTOMATIC_DISCOVERY_RANGE', 'ROS_DOMAIN_ID')}
-    os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-    os.environ['ROS_DOMAIN_ID'] = str(free_domain_id())
-    yield dict(os.environ)
-    for k, v in saved.items():
-        if v is None:
-            os.environ.pop(k, None)
-        else:
-            os.environ[k] = v
+    with ros_domain() as domain, pytest.MonkeyPatch.context() as patch:
+        patch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+        patch.setenv('ROS_DOMAIN_ID', str(domain))
+        yield dict(os.environ)
 
 
 @pytest.fixture(scope='module')

@@ -123,10 +123,10 @@ def test_the_recorder_node_says_so_and_exits_1_when_the_disk_fills(small_disk, t
     from rclpy.node import Node
     from std_msgs.msg import String
 
-    from ros_helpers import free_domain_id
+    from domains import claim_domain, release_domain
 
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
-               ROS_DOMAIN_ID=str(free_domain_id()))
+               ROS_DOMAIN_ID=str(claim_domain()))
     filler = fill(small_disk, 100_000)
     log = tmp_path / 'recorder.log'
     proc = start_recorder(small_disk, log, env)
@@ -154,6 +154,7 @@ def test_the_recorder_node_says_so_and_exits_1_when_the_disk_fills(small_disk, t
             proc.kill()
         node.destroy_node()
         rclpy.try_shutdown(context=ctx)
+        release_domain(int(env['ROS_DOMAIN_ID']))
     text = log.read_text()
     assert 'Traceback' not in text and 'No space left on device' in text, text
     meta = yaml.safe_load((small_disk / 'bag' / 'metadata.yaml').read_text())

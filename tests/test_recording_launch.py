@@ -28,7 +28,8 @@ from rosbags.highlevel import AnyReader
 from sensor_msgs.msg import JointState
 from std_msgs.msg import String
 
-from ros_helpers import executable, free_domain_id
+from domains import ros_domain
+from ros_helpers import executable
 from sapga_ros.evaluation.evaluator import run_policy_episode
 from sapga_ros.policies.exemplar import ExemplarPolicy
 from sim_nodes.problem import load_problem
@@ -183,19 +184,14 @@ def test_a_launch_whose_bag_is_incomplete_exits_1():
 
 
 @pytest.fixture
-def ros_context():
-    domain = free_domain_id()
-    saved = {k: os.environ.get(k) for k in ('ROS_AUTOMATIC_DISCOVERY_RANGE', 'ROS_DOMAIN_ID')}
-    os.environ.update(ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', ROS_DOMAIN_ID=str(domain))
-    ctx = Context()
-    rclpy.init(context=ctx, domain_id=domain)
-    yield ctx
-    rclpy.try_shutdown(context=ctx)
-    for k, v in saved.items():
-        if v is None:
-            os.environ.pop(k, None)
-        else:
-            os.environ[k] = v
+def ros_context(monkeypatch):
+    with ros_domain() as domain:
+        monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+        monkeypatch.setenv('ROS_DOMAIN_ID', str(domain))
+        ctx = Context()
+        rclpy.init(context=ctx, domain_id=domain)
+        yield ctx
+        rclpy.try_shutdown(context=ctx)
 
 
 def wait(condition, what: str, timeout: float = 20.0) -> None:
@@ -253,12 +249,13 @@ def test_a_raising_callback_is_logged_in_one_line_and_the_node_goes_on(ros_conte
 def test_a_sim_waiting_for_a_missing_recorder_stops_with_one_line(tmp_path):
     """wait_for_recorder names a recorder that never answers: after recorder_timeout the sim
     exits 1 with one line saying so; no episode started, no traceback."""
-    env = dict(os.environ, ROS_DOMAIN_ID=str(free_domain_id()),
-               ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
-    done = subprocess.run([str(executable('acrobot_sim')), '--ros-args', '-p',
-                           'mode:=lockstep', '-p', 'wait_for_recorder:=recorder_node', '-p',
-                           'recorder_timeout:=2.0'], env=env, capture_output=True, text=True,
-                          timeout=60)
+    with ros_domain() as domain:
+        env = dict(os.environ, ROS_DOMAIN_ID=str(domain),
+                   ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+        done = subprocess.run([str(executable('acrobot_sim')), '--ros-args', '-p',
+                               'mode:=lockstep', '-p', 'wait_for_recorder:=recorder_node',
+                               '-p', 'recorder_timeout:=2.0'], env=env, capture_output=True,
+                              text=True, timeout=60)
     errors = [line for line in done.stderr.splitlines()
               if line.startswith('acrobot_sim: error: ')]
     assert done.returncode == 1 and 'Traceback' not in done.stderr, done.stderr
