@@ -509,8 +509,22 @@ def test_a_topic_published_with_another_type_is_recorded_as_published(
 
 
 @pytest.mark.parametrize('sig', [signal.SIGTERM, signal.SIGINT])
-def test_sigterm_and_ctrl_c_finish_the_bag(context, ros_env, tmp_path, sig):
-    """SIGTERM or Ctrl-C makes the recorder finish the bag (footer, metadata.yaml), exit 0."""
+def test_sigterm_and_ctrl_c_finish_the_bag(tmp_path, sig):
+    """SIGTERM or Ctrl-C makes the recorder finish the bag (footer, metadata.yaml), exit 0.
+    In a domain of its own: it counts every message of the bag, so nothing of another test
+    (a transient-local event, a node still shutting down) may reach its recorder."""
+    with ros_domain() as domain:
+        env = dict(os.environ, ROS_DOMAIN_ID=str(domain),
+                   ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+        ctx = Context()
+        rclpy.init(context=ctx, domain_id=domain)
+        try:
+            _record_then_signal(ctx, env, tmp_path, sig)
+        finally:
+            rclpy.try_shutdown(context=ctx)
+
+
+def _record_then_signal(context, ros_env, tmp_path, sig) -> None:
     proc = start_recorder(tmp_path, ros_env, 'flush_period:=0.1')
     pub = Publisher(context, name=f'signal_publisher_{sig}')
     n = 50
