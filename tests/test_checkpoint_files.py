@@ -105,6 +105,9 @@ VARIANTS = {
     'one-dimensional states': with_array('pop_states', lambda a: a.ravel()),
     'string values': with_array('pop_values', lambda a: np.array(['x'] * len(a))),
     'short pop_has_used': with_array('pop_has_used', lambda a: a[:3]),
+    'catch scale out of range': with_array('pop_catch_scale', lambda a: a * 100),
+    'short pop_catch_scale': with_array('pop_catch_scale', lambda a: a[:3]),
+    'nan catch scale': with_array('pop_catch_scale', lambda a: a * np.nan),
     'two best policies': with_array('best_lengths', lambda a: np.array([3, 3])),
     'huge exemplar counts': with_array('pop_lengths', lambda a: np.full(len(a), 2 ** 62)),
 }

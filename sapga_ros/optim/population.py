@@ -27,12 +27,14 @@ class Individual:
     steps: int = 0                         # MDP steps of its episode
     reached: bool = False
     used: np.ndarray | None = None         # exemplars referred to in that episode
+    scale: float = 1.0                     # catch region c = the design's c x this (evolved)
 
     @property
     def known(self) -> bool:
         return not math.isnan(self.value)
 
 
+SCALE_RANGE = (1 / 64, 16.0)               # an evolved catch scale stays inside this
 PER_POLICY = ('values', 'delta_star', 'steps', 'reached', 'has_used')   # one entry a policy
 
 
@@ -54,6 +56,7 @@ def pack(individuals: list[Individual], prefix: str) -> dict[str, np.ndarray]:
         f'{prefix}_reached': np.array([m.reached for m in individuals], dtype=np.bool_),
         f'{prefix}_has_used': np.array([m.used is not None for m in individuals]),
         f'{prefix}_used': np.concatenate(used),
+        f'{prefix}_catch_scale': np.array([m.scale for m in individuals]),
     }
 
 
@@ -67,6 +70,10 @@ def unpack(problem: Problem, arrays: dict[str, np.ndarray], prefix: str,
         states, actions = arrays[f'{prefix}_states'], arrays[f'{prefix}_actions']
         used = arrays[f'{prefix}_used']
         per_policy = [arrays[f'{prefix}_{k}'] for k in PER_POLICY]
+        scales = arrays.get(f'{prefix}_catch_scale')     # absent in older checkpoints: 1
+        if scales is None:
+            scales = np.ones(len(lengths))
+        per_policy.append(scales)
         if lengths.dtype.kind not in 'iu' or lengths.ndim != 1 or np.any(lengths < 1) or \
                 lengths.sum() != len(actions) or len(states) != len(actions) or \
                 len(used) != len(actions) or \
@@ -75,6 +82,9 @@ def unpack(problem: Problem, arrays: dict[str, np.ndarray], prefix: str,
         if states.ndim != 2 or states.shape[1] != problem.dim or actions.ndim != 1 or \
                 actions.dtype.kind not in 'iu' or used.ndim != 1 or used.dtype != np.bool_:
             raise ValueError('exemplar arrays of the wrong shape or type')
+        if scales.dtype.kind != 'f' or not np.all((scales >= SCALE_RANGE[0]) &
+                                                  (scales <= SCALE_RANGE[1])):
+            raise ValueError(f'catch scales outside [{SCALE_RANGE[0]}, {SCALE_RANGE[1]}]')
         if not np.all(np.isfinite(states)) or np.any(actions < 0) or \
                 np.any(actions >= len(problem.actions)):
             raise ValueError('non-finite states or action indices out of range')
@@ -90,7 +100,8 @@ def unpack(problem: Problem, arrays: dict[str, np.ndarray], prefix: str,
             out.append(Individual(policy, float(arrays[f'{prefix}_values'][k]),
                                   float(arrays[f'{prefix}_delta_star'][k]),
                                   int(arrays[f'{prefix}_steps'][k]),
-                                  bool(arrays[f'{prefix}_reached'][k]), marks))
+                                  bool(arrays[f'{prefix}_reached'][k]), marks,
+                                  float(scales[k])))
         return out
     except (KeyError, IndexError, TypeError, ValueError, SapgaError) as exc:
         raise CheckpointError(f'checkpoint population {prefix!r} is inconsistent ({exc})') \

@@ -10,6 +10,12 @@ other's.
 
 Fixed strategy parameters live in ``SapgaParams``; the changing state (population, values,
 generator, counters) is what a checkpoint saves (``state_dict`` / ``from_state``).
+
+With an evolved catch (``evolve_catch``: the hybrid, exemplars plus the LQR catch), each
+individual carries a catch scale (its region x'Px <= c with c = the design's c x scale): a
+child inherits one parent's (a fair coin), times exp(sigma N(0, 1)), clipped to
+``SCALE_RANGE``; a refreshed clone keeps its star's.  These draws come from a generator of
+their own, so the run's generator draws as without them.
 """
 from __future__ import annotations
 
@@ -24,7 +30,8 @@ from sapga_ros.policies.styles import STYLES
 from sapga_ros.optim.base import Optimizer, Result, State
 from sapga_ros.optim.generation import compact, crossovers, refreshes
 from sapga_ros.optim.operators import random_policy
-from sapga_ros.optim.population import Individual, pack, unpack
+from sapga_ros.optim.population import SCALE_RANGE, Individual, pack, unpack
+from sapga_ros.policies.classical import ControlledPolicy, hybrid_of_valid
 from sim_nodes.params import check, param
 from sim_nodes.problem import Problem
 
@@ -109,6 +116,16 @@ class SapGA(Optimizer):
     best: Individual | None = None         # the best evaluated member so far
     _families: list | None = None
     _pending: list | None = None
+    catch: ControlledPolicy | None = None  # the design's catch, when its region evolves
+    catch_sigma: float = 0.0               # log-normal mutation size of the catch scale
+    catch_rng: np.random.Generator | None = None   # draws of the catch scales only
+
+    def evolve_catch(self, catch: ControlledPolicy, sigma: float, seed: int) -> None:
+        """Evolve each individual's catch scale (``catch``: the design's LQR and c); ``ask``
+        then returns policies with their own catch.  A resumed run keeps its generator."""
+        self.catch, self.catch_sigma = catch, sigma
+        if self.catch_rng is None:
+            self.catch_rng = np.random.default_rng([seed, 0xCA7C4])
 
     @classmethod
     def create(cls, problem: Problem, params: SapgaParams, seed: int,
@@ -140,15 +157,34 @@ class SapGA(Optimizer):
                                     self.rng, p.n_child, p.l_min, p.l_max, p.crossover_rate,
                                     p.max_tries)                  # = uniform_crossover each
         self.stats.repairs += repaired
+        scales = self._child_scales(couples)
         families = []
         pending = []
         for f, (i, j) in enumerate(couples):
             members = [pop[i], pop[j]]
-            members.extend(Individual(kid) for kid in kids[f * p.n_child:(f + 1) * p.n_child])
+            members.extend(Individual(kid, scale=scale) for kid, scale in zip(
+                kids[f * p.n_child:(f + 1) * p.n_child],
+                scales[f * p.n_child:(f + 1) * p.n_child]))
             pending.extend(m for m in members if not m.known)
             families.append((i, j, members))
         self._families, self._pending = families, pending
+        if self.catch is not None:
+            return [hybrid_of_valid(m.policy, self.catch, m.scale) for m in pending]
         return [m.policy for m in pending]
+
+    def _child_scales(self, couples: list[tuple[int, int]]) -> list[float]:
+        """Each child's catch scale, family by family: one parent's (a fair coin), mutated
+        log-normally; 1.0 each while the catch does not evolve."""
+        count = len(couples) * self.params.n_child
+        if self.catch is None:
+            return [1.0] * count
+        coins = self.catch_rng.random(count) < 0.5
+        noise = self.catch_rng.standard_normal(count)
+        pop, n = self.population, self.params.n_child
+        parents = np.array([pop[i if coins[k] else j].scale
+                            for f, (i, j) in enumerate(couples)
+                            for k in range(f * n, (f + 1) * n)])
+        return np.clip(parents * np.exp(self.catch_sigma * noise), *SCALE_RANGE).tolist()
 
     def tell(self, returns: np.ndarray, delta_star: np.ndarray, steps: np.ndarray,
              reached: np.ndarray, used: list[np.ndarray]) -> None:
@@ -182,10 +218,10 @@ class SapGA(Optimizer):
         clones = refreshes(stars, self.rng, self.params.refresh_rate)  # = refresh each
         for (i, j, _), star, (clone, count) in zip(self._families, stars, clones):
             st.refreshed += count
-            twin = Individual(clone)
+            twin = Individual(clone, scale=star.scale)
             if count == 0:                                        # unchanged: value known
                 twin = Individual(clone, star.value, star.delta_star, star.steps,
-                                  star.reached, star.used)
+                                  star.reached, star.used, star.scale)
             star.policy = compact(star.policy)      # a child: arrays of its own
             self.population[i] = star
             self.population[j] = twin
@@ -216,7 +252,8 @@ class SapGA(Optimizer):
             'value': best.value, 'delta_star': best.delta_star, 'steps_to_end': best.steps,
             'reached': best.reached, 'run_delta_star': st.delta_star, 'steps': st.steps,
             'generations': st.generation, 'method': self.method,
-            'trainer': asdict(self.params)})
+            'trainer': asdict(self.params),
+            **({'catch_scale': best.scale} if self.catch is not None else {})})
 
     def counters(self) -> dict:
         return asdict(self.stats)
@@ -229,7 +266,10 @@ class SapGA(Optimizer):
         arrays = pack(self.population, 'pop')
         if self.best is not None:
             arrays.update(pack([self.best], 'best'))
-        return {'stats': asdict(self.stats), 'rng': self.rng.bit_generator.state}, arrays
+        meta = {'stats': asdict(self.stats), 'rng': self.rng.bit_generator.state}
+        if self.catch_rng is not None:
+            meta['catch_rng'] = self.catch_rng.bit_generator.state
+        return meta, arrays
 
     @classmethod
     def from_state(cls, problem: Problem, params: SapgaParams, state: State,
@@ -239,12 +279,16 @@ class SapGA(Optimizer):
         try:
             rng.bit_generator.state = meta['rng']
             stats = Stats(**meta['stats'])
+            catch_rng = None
+            if 'catch_rng' in meta:
+                catch_rng = np.random.default_rng()
+                catch_rng.bit_generator.state = meta['catch_rng']
         except (KeyError, TypeError, ValueError) as exc:
             raise CheckpointError(f'malformed run state ({exc})') from exc
         population = unpack(problem, arrays, 'pop', params.style)
         if len(population) != params.n_pop:
             raise CheckpointError(f'population of {len(population)}, expected {params.n_pop}')
-        ga = cls(problem, params, rng, population, stats)
+        ga = cls(problem, params, rng, population, stats, catch_rng=catch_rng)
         if 'best_lengths' in arrays:
             ga.best = unpack(problem, arrays, 'best', params.style)[0]
         return ga

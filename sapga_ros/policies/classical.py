@@ -132,12 +132,26 @@ def swing_constants(problem: Problem, kind: int, gains: list[float]) -> list[flo
             g * (m1 * l1 + m2 * l2), *gains, float(first)]
 
 
-def with_catch(policy: ExemplarPolicy, catch: ControlledPolicy) -> ControlledPolicy:
-    """``policy`` handing over to the LQR of ``catch`` inside its x'Px <= c."""
+def with_catch(policy: ExemplarPolicy, catch: ControlledPolicy,
+               scale: float = 1.0) -> ControlledPolicy:
+    """``policy`` handing over to the LQR of ``catch`` inside its x'Px <= c (c scaled by
+    ``scale``: an evolved catch region)."""
     return ControlledPolicy(policy.problem, policy.states, policy.actions, policy.meta,
                             policy.style, policy.values,
                             policy.states2 if policy.states2.shape[1] else None,
-                            K=catch.K, P=catch.P, c=catch.c, delay=catch.delay)
+                            K=catch.K, P=catch.P, c=catch.c * scale, delay=catch.delay)
+
+
+def hybrid_of_valid(policy: ExemplarPolicy, catch: ControlledPolicy,
+                    scale: float) -> ControlledPolicy:
+    """``with_catch`` for a policy whose arrays are already valid (an operator's child, a
+    population member): no checks, no copies, the arrays shared.  SAP-GA's hot path when
+    the catch region evolves."""
+    hybrid = ControlledPolicy.of_valid(policy.problem, policy.states, policy.actions,
+                                       policy.style, policy.values, policy.states2)
+    hybrid.meta, hybrid.kind, hybrid.law, hybrid.gains = policy.meta, 'exemplar', '', None
+    hybrid.K, hybrid.P, hybrid.c, hybrid.delay = catch.K, catch.P, catch.c * scale, catch.delay
+    return hybrid
 
 
 def _vector(value: Any, length: int, where: str) -> np.ndarray:

@@ -72,6 +72,10 @@ class TrainConfig:
     catch_delay: int = param(0, 'MDP steps of actuation delay the catch\'s LQR is designed '
                              'for (--catch lqr): it acts on the state predicted that far ahead '
                              'from the commands in flight; 0: none', low=0, high=MAX_DELAY)
+    catch_sigma: float = param(0.0, 'log-normal mutation size of each policy\'s catch region '
+                               '(--catch lqr): a child\'s c is a parent\'s times exp(sigma '
+                               'N(0,1)), within 1/64..16 x the design\'s c; 0: the design\'s c '
+                               'for every policy', low=0.0, high=4.0)
     disturbance: str = param('none', 'disturbance profile of every evaluation (robust '
                              'fitness): a name in msg_configs/disturbances or a .yaml file; '
                              'none: the undisturbed model')
@@ -88,6 +92,8 @@ class TrainConfig:
         check_stat(self.robust_stat)
         if self.catch_delay and self.catch != 'lqr':
             raise ConfigError('catch_delay: the delay of the LQR catch needs catch lqr')
+        if self.catch_sigma and self.catch != 'lqr':
+            raise ConfigError('catch_sigma: evolving the catch region needs catch lqr')
 
     @property
     def disturbed(self) -> bool:
@@ -119,9 +125,10 @@ def run_settings(config: TrainConfig, problem: Problem, delta: float) -> dict:
     cls = METHODS[config.method]
     robust = {'disturbance': config.disturbance, 'episodes': config.episodes,
               'robust_stat': config.robust_stat} if config.disturbed else {}
+    evolved = {'catch_sigma': config.catch_sigma} if config.catch_sigma else {}
     return json_roundtrip({'problem': problem.name, 'method': config.method, 'delta': delta,
                            'seed': config.seed, **cls.settings(problem, method_params(config)),
-                           **robust})
+                           **robust, **evolved})
 
 
 def method_params(config: TrainConfig) -> SapgaParams | QlParams | CmaesParams:
@@ -238,6 +245,8 @@ def _rounds(config: TrainConfig, initial: list[ExemplarPolicy] = (),
                            classical_policy(problem, delay=config.catch_delay))
         evaluator.catch = catch.control
     opt, history = _start(config, problem, delta, list(initial))
+    if config.catch_sigma:
+        opt.evolve_catch(catch, config.catch_sigma, config.seed)
     start = last_save = time.perf_counter()
     steps_at_start, compiled_at_start = opt.steps, compile_seconds()
     alt_star = min([math.inf] + [r['delta_star_alt'] for r in history[-1:]
@@ -322,7 +331,7 @@ def _best_policy(config: TrainConfig, opt: Optimizer, delta: float, jobs: int,
     policy = result.policy
     if catch is not None:
         from sapga_ros.policies.classical import with_catch
-        policy = with_catch(policy, catch)
+        policy = with_catch(policy, catch, result.meta.get('catch_scale', 1.0))
     policy.meta = {**result.meta, 'delta': delta, 'seed': config.seed, 'jobs': jobs,
                    'software': f'sapga_ros {__version__}',
                    'time': time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime())}
