@@ -189,6 +189,19 @@ def markdown_table(summaries: list[dict]) -> str:
     return '\n'.join(lines) + '\n'
 
 
+def row_method(s: dict) -> str:
+    """A row's method as the tables and figures name it: the method, its variant, the LQR
+    catch, the disturbance of its robust fitness."""
+    text = s['method']
+    if s.get('variant', 'paper') != 'paper':
+        text += f" [{s['variant']}]"
+    if s.get('catch', 'none') != 'none':
+        text += ' + LQR catch'
+    if s.get('disturbance', 'none') != 'none':
+        text += f" robust ({s['disturbance']})"
+    return text
+
+
 def hold_table(summaries: list[dict]) -> list[str]:
     """The hold measures of the rows that have them, as Markdown lines (none: [])."""
     held = [s for s in summaries if 'holding' in s['final']]
@@ -202,10 +215,7 @@ def hold_table(summaries: list[dict]) -> list[str]:
         ci = f['hold_fraction_ci95']
         ci = '-' if ci is None else f'[{ci[0]:.3f}, {ci[1]:.3f}]'
         first = '-' if f['first_entry_mean'] is None else f"{f['first_entry_mean']:.0f}"
-        method = s['method'] + (f" [{s['variant']}]" if s.get('variant', 'paper') != 'paper'
-                                else '')
-        method += ' + LQR catch' if s.get('catch', 'none') != 'none' else ''
-        lines.append(f"| {s['id']} | {s['problem']} | {method} "
+        lines.append(f"| {s['id']} | {s['problem']} | {row_method(s)} "
                      f"| {f['hold_fraction_mean']:.3f} ± {f['hold_fraction_std']:.3f} "
                      f"| {ci} | {f['holding']}/{f['runs']} "
                      f"| {f['holding_clean']}/{f['runs']} | {first} "

@@ -13,7 +13,7 @@ from __future__ import annotations
 import os
 import stat
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 from sapga_ros.errors import ConfigError, DataFileError
 from sapga_ros.io import schema
@@ -89,6 +89,15 @@ def read_run(path: Path, seed: int | None = None) -> tuple[Any, dict]:
     doc = schema.mapping(read_json(path, MAX_RUN_BYTES, MAX_RUN_VALUES), str(path))
     key = schema.mapping(schema.field(doc, 'key', str(path)), f'{path}: key')
     return key, check_run(schema.field(doc, 'run', str(path)), f'{path}: run', seed)
+
+
+def stored_runs(out: Path, exp_id: int, seeds: list[int]) -> Iterator[tuple[int, dict]]:
+    """(seed, checked run record) of each of ``seeds`` whose run file ``out/runs/`` holds,
+    read one at a time."""
+    for seed in seeds:
+        path = run_path(out, exp_id, seed)
+        if path.exists():
+            yield seed, read_run(path, seed)[1]
 
 
 def run_state(path: Path, key: dict, seed: int) -> tuple[dict | None, str]:

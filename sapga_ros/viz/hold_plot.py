@@ -13,24 +13,20 @@ import numpy as np
 from sapga_ros.evaluation.evaluator import Evaluator
 from sapga_ros.io.atomic import save_figure
 from sapga_ros.policies.runnable import policy_from_document
-from sapga_ros.training.run_files import read_run, run_path
+from sapga_ros.training.experiment_report import row_method
+from sapga_ros.training.run_files import stored_runs
 from sim_nodes.goal import delta_of
 
 
 def _label(s: dict) -> str:
-    name = s['method'] + ('' if s.get('variant', 'paper') == 'paper' else f" {s['variant']}")
-    return f"#{s['id']} {name}" + (' + catch' if s.get('catch', 'none') != 'none' else '')
+    return f"#{s['id']} {row_method(s)}"
 
 
 def _runs(out: Path, s: dict) -> tuple[list[tuple[int, dict]], tuple | None]:
     """(seed, final measures) of each of the row's stored runs, and (seed, policy document)
     of the best (hold fraction, then value; only that policy is kept in memory)."""
     rows, best, best_key = [], None, None
-    for seed in s['seeds']:
-        path = run_path(out, s['id'], seed)
-        if not path.is_file():
-            continue
-        run = read_run(path, seed)[1]
+    for seed, run in stored_runs(out, s['id'], s['seeds']):
         f = run['final']
         rows.append((seed, f))
         key = (f.get('hold_fraction', 0.0), f.get('policy_value', -math.inf))

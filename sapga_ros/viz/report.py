@@ -20,7 +20,7 @@ from sapga_ros.io.atomic import save_figure, write_atomic
 from sapga_ros.policies.runnable import policy_from_document
 from sapga_ros.training.experiment_report import count_text, hold_table
 from sapga_ros.training.report_files import read_info, read_summary
-from sapga_ros.training.run_files import read_run, run_path
+from sapga_ros.training.run_files import stored_runs
 
 FIG5_STEPS = 1_000_000      # MDP steps of each Figure 5 run (SAP-GA and Q-learning), seed 0
 
@@ -86,14 +86,11 @@ def table(summaries: list[dict]) -> list[str]:
 def _best_runs(out: Path, summary: dict, count: int) -> list[tuple[dict, dict]]:
     """The ``count`` runs of an experiment with the best final value, with their policy."""
     runs = []
-    for seed in summary['seeds']:
-        path = run_path(out, summary['id'], seed)
-        if path.exists():
-            run = read_run(path, seed)[1]
-            if math.isfinite(run['final']['best_value']) and 'policy' in run:
-                runs.append(run)
-                runs.sort(key=lambda r: -r['final']['best_value'])
-                del runs[count:]                   # one run beyond those kept in memory
+    for _, run in stored_runs(out, summary['id'], summary['seeds']):
+        if math.isfinite(run['final']['best_value']) and 'policy' in run:
+            runs.append(run)
+            runs.sort(key=lambda r: -r['final']['best_value'])
+            del runs[count:]                       # one run beyond those kept in memory
     return [(r, r['policy']) for r in runs]
 
 

@@ -19,8 +19,8 @@ from sapga_ros.evaluation.sweep import sweep
 from sapga_ros.io.atomic import write_inside
 from sapga_ros.io.jsonfile import dumps
 from sapga_ros.policies.runnable import policy_from_document
-from sapga_ros.training.experiment_report import bootstrap_ci
-from sapga_ros.training.run_files import read_run, run_path
+from sapga_ros.training.experiment_report import bootstrap_ci, row_method
+from sapga_ros.training.run_files import stored_runs
 
 
 @dataclass(frozen=True)
@@ -35,28 +35,18 @@ class CurveSettings:
 
 
 def _label(s: dict) -> str:
-    parts = [f"#{s['id']}", s['method']]
-    if s.get('variant', 'paper') != 'paper':
-        parts.append(s['variant'])
-    if s.get('catch', 'none') != 'none':
-        parts.append('+ catch')
-    if s.get('disturbance', 'none') != 'none':
-        parts.append(f"robust ({s['disturbance']})")
-    return ' '.join(parts) + f" ({s['problem']})"
+    return f"#{s['id']} {row_method(s)} ({s['problem']})"
 
 
 def _row_points(out: Path, s: dict, profiles: list, settings: CurveSettings,
                 points: list[dict]) -> dict[str, np.ndarray]:
     """(seeds x scales) success rates of row ``s`` per profile; ``points`` gets each one."""
     rates: dict[str, list] = {p.name: [] for p in profiles}
-    for seed in s['seeds']:
-        path = run_path(out, s['id'], seed)
-        if not path.is_file():
-            continue
-        doc = read_run(path, seed)[1].get('policy')
+    for seed, run in stored_runs(out, s['id'], s['seeds']):
+        doc = run.get('policy')
         if doc is None:
             continue
-        policy = policy_from_document(doc, s['problem'], str(path))
+        policy = policy_from_document(doc, s['problem'], f"run {s['id']} seed {seed}")
         for p in profiles:
             rows = sweep(policy, s['delta'], p, settings.scales, settings.episodes,
                          settings.seed)
