@@ -11,6 +11,7 @@ import pytest
 
 from sapga_ros.evaluation.classical_design import classical_policy
 from sapga_ros.evaluation.evaluator import Evaluator
+from sapga_ros.io.checkpoint import load_checkpoint, save_checkpoint
 from sapga_ros.optim.population import SCALE_RANGE
 from sapga_ros.optim.sapga import SapGA, SapgaParams
 from sapga_ros.policies.classical import ControlledPolicy, with_catch
@@ -141,6 +142,24 @@ def test_kill_and_resume_with_the_catch_evolving_equals_the_uninterrupted_run(tm
     with pytest.raises(Exception, match='catch_sigma'):
         train_sapga(TrainConfig(steps=100_000, checkpoint=str(ck), resume=True,
                                 **{**config, 'catch_sigma': 0.25}))
+    # the catch itself is part of the run: resumed without it, or designed for another
+    # delay, the checkpoint is refused, naming what differs
+    with pytest.raises(Exception, match='catch lqr'):
+        train_sapga(TrainConfig(steps=100_000, checkpoint=str(ck), resume=True,
+                                **{**config, 'catch': 'none', 'catch_sigma': 0.0}))
+    with pytest.raises(Exception, match='catch_delay 0.*catch_delay 1'):
+        train_sapga(TrainConfig(steps=100_000, checkpoint=str(ck), resume=True,
+                                **{**config, 'catch_delay': 1}))
+    # a checkpoint written before the catch was a run setting still resumes, as the hybrid
+    # its settings record, and only as that
+    meta, arrays = load_checkpoint(str(ck))
+    meta['run'] = {k: v for k, v in meta['run'].items() if k not in ('catch', 'catch_delay')}
+    save_checkpoint(str(ck), meta, arrays)
+    again = train_sapga(TrainConfig(steps=100_000, checkpoint=str(ck), resume=True, **config))
+    assert again.policy.meta['value'] == full.policy.meta['value']
+    with pytest.raises(Exception, match='catch_delay 1'):
+        train_sapga(TrainConfig(steps=100_000, checkpoint=str(ck), resume=True,
+                                **{**config, 'catch_delay': 1}))
 
 
 @pytest.mark.parametrize('args, needle', [

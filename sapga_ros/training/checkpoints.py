@@ -71,9 +71,9 @@ def restore(directory: str, run: dict, rebuild: Callable[[State], Optimizer]
     """The optimizer (``rebuild(state)``) and log of the checkpoint in ``directory``, if it
     is of the run ``run`` and its contents hold up."""
     meta, arrays = load_checkpoint(directory)
-    if meta.get('run') != run:
-        if not isinstance(meta.get('run'), dict):
-            raise CheckpointError(f'{directory}: the checkpoint records no run settings')
+    if not isinstance(meta.get('run'), dict):
+        raise CheckpointError(f'{directory}: the checkpoint records no run settings')
+    if older_run(meta['run'], meta.get('settings'), run) != run:
         raise CheckpointError(f'{directory}: checkpoint is of {difference(meta["run"], run)}')
     try:
         history = check_history(meta.get('history', []))
@@ -87,6 +87,15 @@ def restore(directory: str, run: dict, rebuild: Callable[[State], Optimizer]
         raise CheckpointError(f'{directory}: unusable run state ({type(exc).__name__}: '
                               f'{exc})'[:300]) from exc
     return opt, history
+
+
+def older_run(saved: dict, settings: Any, run: dict) -> dict:
+    """``saved`` with each run setting that ``run`` names and ``saved`` lacks taken from the
+    checkpoint's ``settings``: a checkpoint written before that setting was a run setting
+    (the catch of a hybrid run) resumes when it recorded the same value."""
+    if not isinstance(settings, dict):
+        return saved
+    return {**saved, **{k: settings[k] for k in run if k not in saved and k in settings}}
 
 
 def check_history(history: Any) -> list[dict]:

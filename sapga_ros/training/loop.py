@@ -125,10 +125,14 @@ def run_settings(config: TrainConfig, problem: Problem, delta: float) -> dict:
     cls = METHODS[config.method]
     robust = {'disturbance': config.disturbance, 'episodes': config.episodes,
               'robust_stat': config.robust_stat} if config.disturbed else {}
+    # the catch is in the loop: a hybrid run resumes only as the same hybrid (no catch: the
+    # paper's settings, so that checkpoints written before the catch existed still resume)
+    hybrid = ({'catch': config.catch, 'catch_delay': config.catch_delay}
+              if config.catch != 'none' else {})
     evolved = {'catch_sigma': config.catch_sigma} if config.catch_sigma else {}
     return json_roundtrip({'problem': problem.name, 'method': config.method, 'delta': delta,
                            'seed': config.seed, **cls.settings(problem, method_params(config)),
-                           **robust, **evolved})
+                           **robust, **hybrid, **evolved})
 
 
 def method_params(config: TrainConfig) -> SapgaParams | QlParams | CmaesParams:
