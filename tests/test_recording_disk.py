@@ -162,3 +162,41 @@ def test_the_recorder_node_says_so_and_exits_1_when_the_disk_fills(small_disk, t
     assert 'incomplete' in info['custom_data']
     files = [small_disk / 'bag' / name for name in info['relative_file_paths']]
     assert info['message_count'] == sum(stream_count(p) for p in files) > 0
+
+
+CUT_SHORT = """
+import resource, signal, sys
+from pathlib import Path
+from sapga_ros.errors import McapError
+from sapga_ros.recording.storage import StorageFile
+from test_recording_files import topics
+signal.signal(signal.SIGXFSZ, signal.SIG_IGN)    # a write past the limit fails, EFBIG
+resource.setrlimit(resource.RLIMIT_FSIZE, (int(sys.argv[2]), int(sys.argv[2])))
+f = StorageFile(Path(sys.argv[1]), 1000, 'none')
+topic = topics()[0]
+f.add_topic(topic)
+k = 0
+try:
+    while True:
+        f.write(topic.name, bytes(range(256)) * 3, k, k)
+        k += 1
+except McapError as exc:
+    print(k, exc)
+"""
+
+
+@pytest.mark.parametrize('limit', [20_000, 20_333, 31_111])
+def test_a_write_cut_short_leaves_the_file_on_a_record_boundary(tmp_path, limit):
+    """A file-size limit cuts a chunk's write short, the next write fails: the part of the
+    chunk that reached the file is cut off, so mcap's streaming reader reads every whole
+    chunk and meets a clean end of file (it met a half record before)."""
+    path = tmp_path / 'x.mcap'
+    done = subprocess.run([sys.executable, '-c', CUT_SHORT, str(path), str(limit)],
+                          capture_output=True, text=True, timeout=120,
+                          env={**os.environ, 'PYTHONPATH': os.pathsep.join(
+                              [str(Path(__file__).parent), os.environ.get('PYTHONPATH', '')])})
+    assert done.returncode == 0 and 'write failed' in done.stdout, done.stderr[-2000:]
+    size = path.stat().st_size
+    assert size < limit
+    count = stream_count(path)          # raised struct.error on the half record before
+    assert 0 < count <= int(done.stdout.split()[0])

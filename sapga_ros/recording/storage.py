@@ -3,7 +3,9 @@
 Every byte the ``mcap`` library's ``Writer`` emits goes to the operating system at once
 (an unbuffered file: survives SIGKILL); ``flush`` closes the chunk in progress.  A write
 that fails (a full disk) marks the file broken: it takes nothing more, is closed without
-summary and footer, and keeps what reached the disk for ``sapga bag reindex``.
+summary and footer, and keeps every whole record that reached the disk for ``sapga bag
+reindex`` (the part of a record the failed write left is cut off, so that the file ends on a
+record boundary and streaming readers read it to its end).
 
 Each channel and its schema are also written outside the chunks, as a Metadata record
 ``sapga_channel`` (``chunks.channel_record``): the chunk that defines a channel may be the
@@ -12,6 +14,7 @@ be kept; readers that do not know the record skip it.
 """
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import IO, Any, Mapping
 
@@ -76,11 +79,21 @@ class StorageFile:
     def _do(self, action: Any, *args: Any, **kwargs: Any) -> Any:
         if self.broken:
             raise McapError(f'{self.path}: an earlier write failed')
+        end = self._file.tell()             # the end of the last whole record
         try:
             return action(*args, **kwargs)
         except OSError as exc:
             self.broken = True
+            self._cut(end)
             raise McapError(f'{self.path}: write failed ({exc.strerror or exc})') from exc
+
+    def _cut(self, end: int) -> None:
+        """Drop what a failed write left after ``end``: part of a record, which no reader
+        could parse (cutting a file frees space, so it works on a full disk)."""
+        try:
+            os.ftruncate(self._file.fileno(), end)
+        except OSError:
+            pass                            # the reindex of the bag still ends there
 
     def add_metadata(self, name: str, data: Mapping[str, str]) -> None:
         self._do(self._writer.add_metadata, name, {str(k): str(v) for k, v in data.items()})
