@@ -248,6 +248,13 @@ class Probe(Node):
             return next((e for e in self.events
                          if e['event'] == kind and e['episode'] == episode), None)
 
+    def heard(self, states: int, steps: int) -> bool:
+        """At least ``states`` states and ``steps`` rewards, commands and exemplar indices
+        heard: an end event (its own topic) can arrive before the episode's last messages."""
+        with self.lock:
+            return len(self.states) >= states and min(
+                len(self.rewards), len(self.commands), len(self.indices)) >= steps
+
     def end_of(self, episode: int) -> dict | None:
         """The goal / step_limit / end_stop event that ended ``episode``, or None."""
         return self.event('goal', episode) or self.event('step_limit', episode) or \
@@ -271,4 +278,7 @@ def run_lockstep(ros, problem, policy, path, delta, episodes=2, **sim_params):
     assert pol.set_parameters([Parameter('policy_file', value=str(path))])[0].successful
     for k in range(1, episodes + 1):
         ros.wait_for(lambda k=k: probe.end_of(k), f'the end of episode {k}')
+    steps = sum(probe.end_of(k)['step'] for k in range(1, episodes + 1))
+    ros.wait_for(lambda: probe.heard(steps + episodes, steps),
+                 'the last states, rewards, commands and exemplar indices')
     return probe, sim
