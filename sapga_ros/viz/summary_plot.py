@@ -16,6 +16,7 @@ def plot_summaries(summaries: list[dict], out: Path) -> list[Path]:
     import matplotlib.pyplot as plt
 
     from sapga_ros.io.atomic import save_figure
+    from sapga_ros.training.experiment_report import row_method
     paths = []
     groups: dict[str, list[dict]] = {}
     for s in summaries:
@@ -25,7 +26,8 @@ def plot_summaries(summaries: list[dict], out: Path) -> list[Path]:
         for s in items:
             x = np.array(s['grid']) / 1e6
             style = s.get('style', 'state-action')
-            label = (f"#{s['id']} {s['method'].upper()} {s['problem']} delta={s['delta']}"
+            method = s['method'].upper() + row_method(s)[len(s['method']):]   # + variant
+            label = (f"#{s['id']} {method} {s['problem']} delta={s['delta']}"
                      + (f' {style}' if style != 'state-action' else ''))
             for ax, key in zip(axes[:2], ('best_value', 'delta_star')):
                 m = np.array(s[key]['mean'], dtype=float)
