@@ -173,10 +173,12 @@ def test_realtime_late_commands_count_exactly_the_unanswered_states(ros, acrobot
     states the policy never answered (a probe hears every answer) and at most its steps."""
     ExemplarPolicy(acrobot, acrobot.initial_state[None, :], [2]).save(tmp_path / 'p.json')
     probe = ros.start(Probe, problem=acrobot)
-    ros.start(PolicyNode, params={'policy_file': str(tmp_path / 'p.json')})
+    pol = ros.start(PolicyNode, params={'policy_file': str(tmp_path / 'p.json')})
     sim = ros.start(SimNode, params={'real_time_factor': 2.0, 'n_step': 40,
                                      'max_episodes': 2})
     end = ros.wait_for(lambda: probe.end_of(2), 'two episodes')
+    # the answers (the policy node's topic) can arrive after the end event (the sim's)
+    ros.wait_for(lambda: len(probe.answered) >= pol.answered, 'every answer sent')
     start = probe.event('start', 2)
     with probe.lock:
         stamps = [t for t in probe.states if start['time'] * 1e9 - 1 <= t
