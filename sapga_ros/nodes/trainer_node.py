@@ -313,6 +313,10 @@ class TrainerNode(LifecycleNode):
             return self._start_training()
 
     def _start_training(self) -> tuple[bool, str]:
+        if self.training and self.status()['state'] != 'training':
+            # done, stopped or failed is published: the thread is only logging it; a train
+            # call that saw the state must not be refused as "already training"
+            self._run.stop(JOIN_TIMEOUT_S)
         if self.training:
             st = self.status()
             return False, (f'already training ({st["method"]}, {st["steps"]} of '
