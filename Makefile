@@ -18,7 +18,7 @@ OUT ?= out
 # ROS domains (tests/domains.py), so workers never hear each other
 TEST_JOBS ?= 2
 
-.PHONY: demo test test-long bench venv clean
+.PHONY: demo test test-long stress-ros bench venv clean
 
 venv: $(WARM)
 
@@ -51,6 +51,11 @@ test: $(WARM)
 # run killed after 40 s); `make test` runs a smaller form of the first and skips the others
 test-long: $(WARM)
 	$(PY) -m pytest -q -n $(TEST_JOBS) --dist worksteal --long -m long tests
+
+# the ROS test files STRESS_RUNS times in a row beside 2 busy loops (tests/stress_ros.py)
+STRESS_RUNS ?= 20
+stress-ros: $(WARM)
+	$(PY) tests/stress_ros.py --runs $(STRESS_RUNS) --jobs $(TEST_JOBS) --out $(OUT)/stress-ros
 
 bench: $(WARM)
 	$(VENV)/bin/sapga bench
