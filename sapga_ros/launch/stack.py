@@ -29,6 +29,7 @@ SETTLE_S = 1.0             # [s] after the graph is complete, for endpoints to m
 STALL_S = 30.0             # [s] lockstep: no new state this long = the episode is stuck
 REPUBLISH_S = 0.2          # [s] lockstep re-publish period once the simulator is let go
 RECORDED_S = 30.0          # [s] for the recorder to write every message of the episodes
+REREAD_S = 1.0             # [s] between reads of the bag while waiting for it to be whole
 
 
 @dataclass(frozen=True)
@@ -174,10 +175,18 @@ class DeployStack:
         """Wait until the bag on disk holds every message of the episodes, so that stopping
         the recorder loses none (a busy recorder can lag behind a lockstep episode; it
         closes a chunk every second).  After ``RECORDED_S`` the launch goes on; the bag is
-        checked again once finished (``check_recording``)."""
+        checked again once finished (``check_recording``).  The bag is read again at most
+        every ``REREAD_S``: reading it takes the CPU a busy recorder needs to catch up."""
+        last = [-math.inf]
+
+        def whole() -> bool:
+            if time.monotonic() - last[0] < REREAD_S:
+                return False
+            last[0] = time.monotonic()
+            return not self.recording_gaps(ends)
+
         try:
-            self.sup.wait(lambda: not self.recording_gaps(ends), timeout=RECORDED_S,
-                          what='the recording')
+            self.sup.wait(whole, timeout=RECORDED_S, what='the recording')
         except LaunchError as exc:
             if 'timed out' not in str(exc):
                 raise

@@ -47,18 +47,19 @@ chunk_size      65536       [bytes] uncompressed MCAP chunk (at most 16 MiB, the
 flush_period    1.0         [s] close the chunk in progress at least this often (0: by size);
                             the most a SIGKILL of the recorder can lose
 compression     zstd        ``zstd``, ``lz4`` or ``none`` (MCAP chunk compression)
-queue_depth     1000        subscription history depth (keep_last)
+queue_depth     1000        subscription history depth (keep_last) per publisher of a role
 delta           (problem)   goal delta the run uses, written to the bag metadata; default:
                             the problem's ``episode.delta``
 ==============  ==========  =================================================================
 
-Ctrl-C, SIGTERM and a shutdown of the ROS context finish the bag (summary, footer,
-``metadata.yaml``); after a SIGKILL, ``sapga bag reindex DIR`` completes it.  A write that
-fails (a full disk) is logged as an error at once; the recorder keeps trying (a new storage
-file once the disk takes data again), and at the end ``metadata.yaml`` counts what the files
-hold, marks the bag ``incomplete`` in its ``custom_data``, and the recorder exits with
-status 1.  Messages that
-never reached the recorder (its queue overflowed: ``queue_depth``, or the network lost them)
+Ctrl-C, SIGTERM and a shutdown of the ROS context write every message the subscriptions
+still hold (a recorder that fell behind loses none of them: ``_drain``) and finish the bag
+(summary, footer, ``metadata.yaml``); after a SIGKILL, ``sapga bag reindex DIR`` completes
+it.  A write that fails (a full disk) is logged as an error at once; the recorder keeps
+trying (a new storage file once the disk takes data again), and at the end
+``metadata.yaml`` counts what the files hold, marks the bag ``incomplete`` in its
+``custom_data``, and the recorder exits with status 1.  Messages that never reached the
+recorder (its queue overflowed: ``queue_depth``, or the network lost them)
 are counted per topic from the publishers' sequence numbers, with a throttled warning and a
 total in the final line (``sim_nodes/ros/dropped.py``).  (Over 300 lines: the node's
 subscriptions, readiness service, lifecycle transitions and the write-failure path that must
@@ -76,6 +77,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+from rclpy.exceptions import InvalidHandle
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.parameter import Parameter
@@ -101,6 +103,7 @@ from sim_nodes.ros.params import check, declare
 
 NODE_NAME = 'recorder_node'  # its readiness service: recorder_node/ready
 GRAPH_PERIOD_S = 1.0        # [s] between looks at the graph (new publishers, their QoS)
+DRAIN_LIMIT = 10 ** 6       # messages taken per topic when stopping (publishers may go on)
 
 
 def message_class(type_name: str) -> Any:
@@ -211,7 +214,9 @@ class RecorderNode(LifecycleNode):
         return TransitionCallbackReturn.SUCCESS
 
     def _stop(self) -> None:
-        """Unsubscribe (the topics wait in ``_pending`` for the next activate); flush."""
+        """Write what the subscriptions still hold, unsubscribe (the topics wait in
+        ``_pending`` for the next activate); flush."""
+        self._drain()
         self.active = False
         for timer in self._active_timers:
             self.destroy_timer(timer)
@@ -402,6 +407,24 @@ class RecorderNode(LifecycleNode):
                                 publish_time_ns(type_name, data, source_ns, receive_ns))
         except SapgaError as exc:
             self._write_failed(f'message on {topic} not recorded', exc)
+
+    def _drain(self) -> None:
+        """Take every message the subscriptions hold that the executor has not handed over
+        yet and write it: a recorder that fell behind (descheduled, a burst) and is then
+        stopped loses nothing that reached it.  The executor takes one message per topic
+        per turn, so a busy topic (``markers``: two publishers) is the furthest behind."""
+        if self._session is None or not self.active:
+            return
+        for topic, (sub, type_name, _) in list(self._subs.items()):
+            for _ in range(DRAIN_LIMIT):
+                try:
+                    with sub.handle:
+                        taken = sub.handle.take_message(sub.msg_type, sub.raw)
+                except (InvalidHandle, RuntimeError):   # destroyed, or the context is gone
+                    break
+                if taken is None:
+                    break
+                self._on_message(topic, type_name, *taken)
 
     def _flush(self) -> None:
         try:

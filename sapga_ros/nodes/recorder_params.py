@@ -26,7 +26,8 @@ PARAMETERS = (
     Param('flush_period', 1.0, 'close the chunk in progress this often (the most a SIGKILL '
           'loses); 0: by size only', 0.0, 3600.0, unit='s'),
     Param('compression', 'zstd', 'MCAP chunk compression', choices=tuple(COMPRESSIONS)),
-    Param('queue_depth', 1000, 'subscription history depth (keep_last)', 1, 1_000_000),
+    Param('queue_depth', 1000, 'subscription history depth (keep_last; per publisher of a '
+          'contract role: markers x2)', 1, 1_000_000),
     replace(DELTA, help='goal delta the run uses, written to the bag metadata'),
     Param('topics', [], 'topics to record: name or name:pkg/msg/Type (default: the '
           "problem's contract topics)"),

@@ -2,7 +2,8 @@
 
 - A topic of the problem's contract is subscribed with the QoS its publisher uses
   (``sim_nodes.ros.common``: ``qos_profile(problem)`` for state, command, reward and exemplar,
-  ``EVENT_QOS``, transient local, for episode events), with a deeper history;
+  ``EVENT_QOS``, transient local, for episode events), with a deeper history: at least the
+  recorder's ``queue_depth`` per publisher of the role (``markers`` has two, one history);
 - a topic whose publishers are on the graph is subscribed as rosbag2 does
   (``Rosbag2QoS::adapt_request_to_offers``): reliable if every publisher is reliable, transient
   local if every publisher is, so the subscription matches all of them;
@@ -15,15 +16,19 @@ from typing import Any, Sequence
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
+from sapga_ros.recording.events import ROLE_PUBLISHERS
 from sapga_ros.recording.metadata import qos_profile as bag_qos
 from sim_nodes.problem import Problem
 from sim_nodes.ros.common import EVENT_QOS, qos_profile
 
 
 def role_qos(problem: Problem, role: str, depth: int) -> QoSProfile:
-    """The publisher's QoS of a contract role, history ``depth`` (at least the publisher's)."""
+    """The publisher's QoS of a contract role, history ``depth`` (at least the publisher's)
+    for each publisher of the role: the publishers of one topic share one history, and a
+    recorder that falls behind by N steps holds N messages of each."""
     base = EVENT_QOS if role == 'event' else qos_profile(problem)
-    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=max(depth, base.depth),
+    writers = ROLE_PUBLISHERS.get(role, 1)
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=max(depth, base.depth) * writers,
                       reliability=base.reliability, durability=base.durability)
 
 

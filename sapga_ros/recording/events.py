@@ -26,6 +26,10 @@ DEFAULT_ROLE_TOPICS = {'state': 'joint_states', 'command': 'command', 'reward': 
 # Roles a run may leave without a publisher: the hand-use Float64 command (the policy node
 # answers on command_stamped).  A recorder is ready without one; one that appears is recorded.
 OPTIONAL_ROLES = ('command',)
+# Publishers of a role in a run: both the simulator (the scene) and the policy node (the
+# exemplar ghost) draw on markers.  One subscription history holds every publisher's
+# messages, so a recorder keeps that many times its depth (``recorder_qos.role_qos``).
+ROLE_PUBLISHERS = {'markers': 2}
 EPISODE_END_EVENTS = ('goal', 'step_limit', 'end_stop', 'reset')
 MAX_EVENT_CHARS = 65536     # an episode event is a few hundred characters
 
