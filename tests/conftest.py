@@ -10,7 +10,7 @@ from typing import Iterator
 import numpy as np
 import pytest
 
-from domains import among_others, ros_domain
+from domains import ros_domain
 from sim_nodes.problem import Problem, load_problem
 
 SEED = 20240521  # every random draw of the suite starts here: a failure reproduces
@@ -25,14 +25,6 @@ def own_ros_domain() -> Iterator[int]:
         patch.setenv('ROS_DOMAIN_ID', str(domain))
         patch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
         yield domain
-
-
-@pytest.hookimpl(wrapper=True)
-def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None):
-    """Each test of a parallel run, fixtures set up and torn down included, holds the run's
-    shared lock, so a recorded launch (``domains.alone``) can wait for the other workers."""
-    with among_others():
-        return (yield)
 
 
 @pytest.fixture(scope='session')

@@ -17,7 +17,7 @@ import pytest
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
-from domains import alone, ros_domain
+from domains import ros_domain
 from ros_helpers import executable
 from sapga_ros.cli import main as cli
 from sapga_ros.launch import run_launch
@@ -123,9 +123,9 @@ def test_unknown_launches_and_bad_policy_files_are_refused_before_any_node_start
 # end to end over real nodes -------------------------------------------------------------
 
 def launch(args: list[str], tmp_path: Path) -> subprocess.CompletedProcess:
-    """Run ``sapga launch ...`` in a ROS domain of its own, alone among parallel test
-    workers (tests/domains.py); fail with its output on error."""
-    with alone(), ros_domain() as domain:
+    """Run ``sapga launch ...`` in a ROS domain of its own (tests/domains.py), beside the
+    other workers' tests; fail with its output on error."""
+    with ros_domain() as domain:
         env = dict(os.environ, ROS_DOMAIN_ID=str(domain),
                    ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', PYTHONUNBUFFERED='1')
         done = subprocess.run([str(executable('sapga')), 'launch', *args], env=env,

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import yaml
 
-from domains import alone, ros_domain
+from domains import ros_domain
 from process_helpers import sapga_in_process
 from ros_helpers import executable
 from sapga_ros import package_version, version_of_package_xml
@@ -161,7 +161,7 @@ def test_swingup_runs_without_ament_prefix_path_in_the_environment(tmp_path, sma
     """With AMENT_PREFIX_PATH removed from the environment, `sapga launch swingup` finds its
     own install and its lockstep episode is recorded as usual."""
     env = {k: v for k, v in os.environ.items() if k != 'AMENT_PREFIX_PATH'}
-    with alone(), ros_domain() as domain:
+    with ros_domain() as domain:
         env.update(ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
                    PYTHONUNBUFFERED='1')
         done = subprocess.run([str(executable('sapga')), 'launch', 'swingup', '--policy',
