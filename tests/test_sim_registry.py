@@ -119,7 +119,8 @@ def test_every_simulator_executable_runs_its_problems_from_the_ros2_run_location
     proc = ros.spawn(exe, '--ros-args', '-p', f'problem:={name}', '-p', 'mode:=lockstep',
                      '-p', 'republish_period:=0.05')
     drive_lockstep(ros, problem, probe)
-    assert exe in probe.get_node_names()
+    # the node's name reaches the graph on its own discovery topic, perhaps after its data
+    ros.wait_for(lambda: exe in probe.get_node_names(), f'{exe} on the graph')
     assert ros.stop(proc) == 0
 
 
