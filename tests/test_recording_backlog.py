@@ -32,7 +32,11 @@ def ros(monkeypatch, tmp_path):
     yield from isolated_ros(monkeypatch, tmp_path)
 
 
-def test_a_recorder_stopped_while_behind_writes_every_message_it_received(ros, tmp_path):
+@pytest.mark.parametrize('stop', ['destroy', 'context shutdown'])
+def test_a_recorder_stopped_while_behind_writes_every_message_it_received(ros, tmp_path, stop):
+    """``destroy``: the node is destroyed (``destroy_node``, as cleanup); ``context
+    shutdown``: the context is shut down first, as Ctrl-C and SIGTERM do to the recorder
+    process, so the graph can no longer be asked (the topics' offered QoS)."""
     problem = load_problem('acrobot')
     rng = np.random.default_rng(5)
     policy = ExemplarPolicy(problem, rng.uniform(problem.low, problem.high, (40, 4)),
@@ -65,6 +69,8 @@ def test_a_recorder_stopped_while_behind_writes_every_message_it_received(ros, t
     assert recorder.message_count - before < 10   # it really was behind: (almost) nothing yet
 
     ros.nodes.remove(recorder)
+    if stop == 'context shutdown':
+        ros.context.try_shutdown()
     recorder.destroy_node()                     # stopped: finishes the bag
     bag = tmp_path / 'rec' / 'run'
     topics = {role: f'/{name}' for role, name in topic_names(problem).items()}

@@ -229,9 +229,15 @@ class RecorderNode(LifecycleNode):
             self._flush()
 
     def _finish(self) -> None:
-        """Stop, then finish the bag (summary, footer, metadata.yaml) and say what it holds."""
-        if self.active:
-            self._stop()
+        """Stop, then finish the bag (summary, footer, metadata.yaml) and say what it holds;
+        the bag is finished even if stopping fails."""
+        try:
+            if self.active:
+                self._stop()
+        finally:
+            self._close()
+
+    def _close(self) -> None:
         s, self._session = self._session, None
         if s is None:
             return
@@ -290,7 +296,10 @@ class RecorderNode(LifecycleNode):
         return role_qos(self._problem, role, self._depth)
 
     def _offers(self, topic: str) -> list[QoSProfile]:
-        return [info.qos_profile for info in self.get_publishers_info_by_topic(topic)]
+        try:
+            return [info.qos_profile for info in self.get_publishers_info_by_topic(topic)]
+        except RuntimeError:    # the context is shut down (draining after a signal)
+            return []
 
     def _subscribe(self, topic: str, type_name: str, qos: QoSProfile) -> bool:
         try:
