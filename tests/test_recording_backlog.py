@@ -77,9 +77,12 @@ def test_a_recorder_stopped_while_behind_writes_every_message_it_received(ros, t
     assert recording_gaps(read_recording(bag), topics, ends, lockstep=True) == []
     (path,) = bag.glob('*.mcap')
     counts: dict[str, int] = {}
-    with open(path, 'rb') as f:                 # read back by the mcap library
-        for _, channel, _ in make_reader(f).iter_messages():
+    with open(path, 'rb') as f:                 # read back by the mcap library, file order
+        times = []
+        for _, channel, message in make_reader(f).iter_messages(log_time_order=False):
             counts[channel.topic] = counts.get(channel.topic, 0) + 1
+            times.append(message.log_time)
+    assert times == sorted(times)               # written in the order received
     answers = steps + EPISODES - 1              # the last state of a run gets no answer
     assert counts['/reward'] == steps
     assert counts['/exemplar_index'] >= answers and counts['/joint_states'] >= steps + EPISODES

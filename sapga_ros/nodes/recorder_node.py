@@ -421,9 +421,11 @@ class RecorderNode(LifecycleNode):
         """Take every message the subscriptions hold that the executor has not handed over
         yet and write it: a recorder that fell behind (descheduled, a burst) and is then
         stopped loses nothing that reached it.  The executor takes one message per topic
-        per turn, so a busy topic (``markers``: two publishers) is the furthest behind."""
+        per turn, so a busy topic (``markers``: two publishers) is the furthest behind.
+        They are written in the order they were received, as the executor would have."""
         if self._session is None or not self.active:
             return
+        held = []
         for topic, (sub, type_name, _) in list(self._subs.items()):
             for _ in range(DRAIN_LIMIT):
                 try:
@@ -433,7 +435,10 @@ class RecorderNode(LifecycleNode):
                     break
                 if taken is None:
                     break
-                self._on_message(topic, type_name, *taken)
+                held.append((int(taken[1].get('received_timestamp') or 0), len(held), topic,
+                             type_name, taken))
+        for _, _, topic, type_name, (data, info) in sorted(held):
+            self._on_message(topic, type_name, data, info)
 
     def _flush(self) -> None:
         try:
