@@ -103,7 +103,6 @@ from sim_nodes.ros.params import check, declare
 
 NODE_NAME = 'recorder_node'  # its readiness service: recorder_node/ready
 GRAPH_PERIOD_S = 1.0        # [s] between looks at the graph (new publishers, their QoS)
-DRAIN_LIMIT = 10 ** 6       # messages taken per topic when stopping (publishers may go on)
 
 
 def message_class(type_name: str) -> Any:
@@ -426,8 +425,8 @@ class RecorderNode(LifecycleNode):
         if self._session is None or not self.active:
             return
         held = []
-        for topic, (sub, type_name, _) in list(self._subs.items()):
-            for _ in range(DRAIN_LIMIT):
+        for topic, (sub, type_name, qos) in list(self._subs.items()):
+            for _ in range(qos.depth):      # what the history holds (publishers may go on)
                 try:
                     with sub.handle:
                         taken = sub.handle.take_message(sub.msg_type, sub.raw)
