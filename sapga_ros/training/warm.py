@@ -4,8 +4,9 @@
 loads compiled code instead of compiling in silence (``sim_nodes.jit`` says why a checkout
 compiles once).  A few tiny runs call every kernel with the argument types real runs use:
 each problem's batch and traced episodes in every exemplar style, a short SAP-GA and
-Q-learning training run, the model step the ROS simulator takes, and a small physical-limit
-search.  On a warm cache it only loads the cached code.
+Q-learning training run, the model step the ROS simulator takes (also on a disturbed
+plant, ``sim_nodes.disturbance.Plant``), and a small physical-limit search.  On a warm
+cache it only loads the cached code.
 """
 from __future__ import annotations
 
@@ -23,6 +24,7 @@ from sapga_ros.optim.operators import random_policy
 from sapga_ros.optim.qlearner import QlParams
 from sapga_ros.optim.sapga import SapgaParams
 from sapga_ros.training.loop import TrainConfig, train
+from sim_nodes.disturbance import Plant, load_disturbance
 from sim_nodes.goal import goal_arrays, goal_delta
 from sim_nodes.jit import compile_seconds
 from sim_nodes.models import model_module
@@ -47,6 +49,12 @@ def warm(problems: list[str] | None = None) -> float:
         # the simulator node's calls
         model_module(problem.model).mdp_step(state, float(problem.actions[0]), problem.params())
         goal_delta(state, *goal_arrays(problem), problem.is_angle)
+        for profile in ('field', 'push'):       # every draw the simulator's plant makes
+            plant = Plant(problem, load_disturbance(profile))
+            s = plant.reset((0, 0, 0, 0))
+            plant.observe(s)
+            plant.command(float(problem.actions[0]))
+            plant.push(s)
         base = TrainConfig(problem=name, steps=2_000, jobs=1, params=SAPGA)
         train(base)
         train(replace(base, method='ql', steps=1_000, ql=QlParams(chunk_steps=1_000)))
