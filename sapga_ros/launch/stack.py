@@ -16,6 +16,7 @@ from sapga_ros.errors import SapgaError
 from sapga_ros.launch.supervisor import LaunchError, Supervisor, find_executable, write_params_file
 from sapga_ros.launch.launch_node import LaunchRos
 from sapga_ros.nodes.recorder_node import NODE_NAME as RECORDER
+from sapga_ros.recording.events import ROLE_PUBLISHERS
 from sapga_ros.recording.reader import read_recording
 from sapga_ros.recording.session import free_bag_path, utc_stamp
 from sapga_ros.recording.verify import recording_gaps
@@ -102,7 +103,7 @@ class DeployStack:
         # policy node both draw on markers
         needs = {t['state']: (1, 3), t['command_stamped']: (1, 2), t['command']: (0, 2),
                  t['reward']: (1, 1), t['event']: (1, 2), t['exemplar']: (1, 1),
-                 t['markers']: (2, 1), **(extra or {})}
+                 t['markers']: (ROLE_PUBLISHERS['markers'], 1), **(extra or {})}
         if 'effort' in t:           # engine mujoco: the policy node's effort array
             needs[t['effort']] = (1, 2)
         node = self.ros.node
@@ -177,16 +178,9 @@ class DeployStack:
         closes a chunk every second).  After ``RECORDED_S`` the launch goes on; the bag is
         checked again once finished (``check_recording``).  The bag is read again at most
         every ``REREAD_S``: reading it takes the CPU a busy recorder needs to catch up."""
-        last = [-math.inf]
-
-        def whole() -> bool:
-            if time.monotonic() - last[0] < REREAD_S:
-                return False
-            last[0] = time.monotonic()
-            return not self.recording_gaps(ends)
-
         try:
-            self.sup.wait(whole, timeout=RECORDED_S, what='the recording')
+            self.sup.wait(lambda: not self.recording_gaps(ends), timeout=RECORDED_S,
+                          what='the recording', every=REREAD_S)
         except LaunchError as exc:
             if 'timed out' not in str(exc):
                 raise

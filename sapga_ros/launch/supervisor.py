@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import math
 import os
 import signal
 import subprocess
@@ -197,13 +198,16 @@ class Supervisor:
                 raise ChildExited(child.name, code)
 
     def wait(self, until: Callable[[], Any] | None = None, *, timeout: float | None = None,
-             what: str = 'the condition') -> Any:
+             what: str = 'the condition', every: float = 0.0) -> Any:
         """Poll until ``until()`` is truthy (returned), watching children and signals.
 
-        Without ``until``, waits for every child to end.  Raises ``LaunchError`` after
-        ``timeout`` seconds, ``ChildExited`` / ``Interrupted`` as ``check`` does.
+        Without ``until``, waits for every child to end.  ``until`` is asked at most every
+        ``every`` seconds (a costly question); children and signals are watched every
+        ``POLL_S`` all the same.  Raises ``LaunchError`` after ``timeout`` seconds,
+        ``ChildExited`` / ``Interrupted`` as ``check`` does.
         """
         deadline = None if timeout is None else time.monotonic() + timeout
+        next_ask = -math.inf
         while True:
             if until is None:
                 if self.signals:
@@ -212,9 +216,11 @@ class Supervisor:
                     return True
             else:
                 self.check()
-                value = until()
-                if value:
-                    return value
+                if time.monotonic() >= next_ask:
+                    next_ask = time.monotonic() + every
+                    value = until()
+                    if value:
+                        return value
             if deadline is not None and time.monotonic() > deadline:
                 raise LaunchError(f'timed out after {timeout:g} s waiting for {what}')
             time.sleep(POLL_S)
