@@ -37,6 +37,38 @@ def goal_delta(s, best, inv_scale, fixed, is_angle):
     return worst
 
 
+@kernel(inline='always')
+def lanes_delta(S, n, best, inv_scale, fixed, is_angle, out):
+    """out[k] = ``goal_delta(S[:, k], ...)`` for the columns k < n of S (D, W), the lanes
+    side by side: the same values (the same comparisons in the same order; a failed bound
+    gives inf, as the early return does), computed dimension by dimension so that the lane
+    loops vectorise.  A circular difference of 2pi or more (an angle not wrapped) needs the
+    remainder: then every lane is recomputed by ``goal_delta``."""
+    for k in range(n):
+        out[k] = 0.0
+    far = 0
+    for i in range(S.shape[0]):
+        b = best[i]
+        inv = inv_scale[i]
+        bound = fixed[i]
+        row = S[i]
+        if is_angle[i]:
+            for k in range(n):
+                d = math.fabs(row[k] - b)
+                far |= d >= TWO_PI
+                d = TWO_PI - d if d > math.pi else d
+                d = d * inv if d <= bound else math.inf
+                out[k] = d if d > out[k] else out[k]
+        else:
+            for k in range(n):
+                d = math.fabs(row[k] - b)
+                d = d * inv if d <= bound else math.inf
+                out[k] = d if d > out[k] else out[k]
+    if far:
+        for k in range(n):
+            out[k] = goal_delta(S[:, k], best, inv_scale, fixed, is_angle)
+
+
 def goal_arrays(problem):
     """(best, inv_scale, fixed) of a Problem, as the kernels take them."""
     scale = np.array(problem.goal_scale, dtype=np.float64)

@@ -83,3 +83,37 @@ def test_training_logs_both_goal_readings_on_the_pdip():
         assert alt == sorted(alt, reverse=True)
     rows = train(TrainConfig(problem='acrobot', steps=100_000, seed=1, jobs=1)).history
     assert 'delta_star_alt' not in rows[-1]
+
+
+def test_state_action_loop_equals_the_general_loop_bit_for_bit():
+    """The engine's loop for state-action policies without a controller (the lanes'
+    states normalised side by side, the nearest exemplar found directly) computes what the
+    general loop computes through ``choose`` (forced here by a controller row of mode
+    none): every result of every policy, and the traced episode."""
+    from sapga_ros.optim.operators import random_exemplars
+    rng = np.random.default_rng(7)
+    for name, delta in (('acrobot', 0.0), ('acrobot', 0.4), ('pdip', 0.3), ('pdip_hold', None),
+                        ('mountain_car', None)):
+        problem = load_problem(name)
+        policies = [random_exemplars(problem, int(rng.integers(1, 120)), rng, 'state-action')
+                    for _ in range(37)]
+        direct = Evaluator(problem, delta=delta)
+        general = Evaluator(problem, delta=delta)
+        general.catch = np.zeros(2)              # mode none: choose falls through to select
+        assert general.controls(policies).shape == (37, 2)
+        a, b = direct.evaluate(policies), general.evaluate(policies)
+        for field in ('returns', 'steps', 'delta_star', 'reached', 'first_entry', 'held',
+                      'contacts'):
+            assert getattr(a, field).tobytes() == getattr(b, field).tobytes(), (name, field)
+        assert all(np.array_equal(u, v) for u, v in zip(a.used, b.used))
+        if delta:                                # some episodes end in the goal
+            assert a.reached.any() and not a.reached.all(), name
+        if name == 'pdip_hold':                  # and some touch the end stop
+            assert a.contacts.any()
+        ea, eb = direct.episode(policies[5]), general.episode(policies[5])
+        for field in ('states', 'actions', 'exemplars', 'rewards', 'used'):
+            assert getattr(ea, field).tobytes() == getattr(eb, field).tobytes(), field
+        assert (ea.ret, ea.steps, ea.delta_star, ea.reached, ea.first_entry, ea.held,
+                ea.contacts) == (eb.ret, eb.steps, eb.delta_star, eb.reached, eb.first_entry,
+                                 eb.held, eb.contacts)
+        assert ea.ret == a.returns[5] and ea.steps == a.steps[5]

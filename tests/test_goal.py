@@ -10,8 +10,9 @@ import pytest
 from numba import njit
 
 from sim_nodes import reference
-from sim_nodes.goal import delta_of, goal_arrays, goal_delta
+from sim_nodes.goal import delta_of, goal_arrays, goal_delta, lanes_delta
 from sim_nodes.models.common import TWO_PI
+from sim_nodes.problem import load_problem
 
 DELTA = 0.05          # the delta at which the paper quotes the goal area's volume
 SAMPLES = 400_000     # Monte-Carlo samples per estimate: ~1 % standard error here
@@ -147,3 +148,42 @@ def test_goal_delta_agrees_with_the_reference(problem, rng):
         ref = reference.goal_delta(problem, s)
         got = delta_of(problem, s)
         assert got == pytest.approx(ref, rel=1e-12) or got == ref == math.inf
+
+
+@njit(cache=True)
+def _lanes(S, best, inv_scale, fixed, is_angle):
+    out = np.full(S.shape[1], -1.0)
+    lanes_delta(S, S.shape[1], best, inv_scale, fixed, is_angle, out)
+    return out
+
+
+@njit(cache=True)
+def _each(S, best, inv_scale, fixed, is_angle):
+    return np.array([goal_delta(S[:, k], best, inv_scale, fixed, is_angle)
+                     for k in range(S.shape[1])])
+
+
+@pytest.mark.parametrize('name', ['acrobot', 'pdip', 'mountain_car'])
+def test_delta_of_lanes_side_by_side_is_delta_of_each_lane_bit_for_bit(name, rng):
+    """``lanes_delta`` (the episode engine's goal test, lanes side by side) gives each
+    column's ``goal_delta`` bit for bit: near and far from the best state, outside a fixed
+    bound, NaN and infinite coordinates, and angles not wrapped (the remainder path)."""
+    problem = load_problem(name)
+    arrays = goal_arrays(problem)
+    best = problem.best_state
+    near = best[:, None] + rng.normal(0, 0.02, (problem.dim, 16))
+    wide = rng.uniform(problem.low, problem.high, (16, problem.dim)).T
+    odd = wide.copy()
+    odd[0, :4] = [np.nan, np.inf, -np.inf, 1e6]
+    odd[-1, 4:8] = [np.nan, 50.0, -50.0, 0.0]
+    cases = [near, wide, odd]
+    if problem.is_angle.any():
+        unwrapped = near.copy()
+        unwrapped[np.argmax(problem.is_angle), 3] += 4 * np.pi    # needs the remainder
+        cases.append(unwrapped)
+    for S in cases:
+        S = np.ascontiguousarray(S)
+        got = _lanes(S, *arrays, problem.is_angle)
+        want = _each(S, *arrays, problem.is_angle)
+        assert got.tobytes() == want.tobytes()
+    assert np.isinf(_lanes(np.ascontiguousarray(odd), *arrays, problem.is_angle)[:2]).all()

@@ -49,3 +49,32 @@ def test_a_cold_cache_says_it_compiles_and_a_warm_one_is_silent(tmp_path):
     warm = run_kernel(tmp_path)
     assert warm.returncode == 0, warm.stderr
     assert warm.stdout.split() == ['3.0', '3.0', 'True'] and warm.stderr == ''
+
+
+FEATURES = """
+import sapga_ros.bench.batch  # imports the straightforward kernel's plain njit functions too
+import llvmlite.binding as llvm
+from numba.core.registry import cpu_target
+host = llvm.get_host_cpu_features().flatten().split(',')
+used = cpu_target.target_context.codegen()._tm_features.split(',')
+print('+avx512f' in host, '-prefer-256-bit' in used)
+"""
+
+
+def test_the_code_generator_uses_wide_vectors_on_avx512_unless_the_user_says_otherwise():
+    """On an AVX-512 CPU every kernel of the process (the straightforward yardstick's
+    too) is compiled with 512-bit vectors preferred; a NUMBA_CPU_FEATURES of the user's is
+    left alone."""
+    user = ('NUMBA_CPU_FEATURES', 'NUMBA_CPU_NAME')
+    env = {k: v for k, v in os.environ.items() if k not in user}
+    env['PYTHONPATH'] = os.pathsep.join([str(ROOT), os.environ.get('PYTHONPATH', '')])
+    out = subprocess.run([sys.executable, '-c', FEATURES], capture_output=True, text=True,
+                         env=env, timeout=300, check=True).stdout.split()
+    assert out[0] == out[1], out              # wide exactly where the CPU has AVX-512
+    host = subprocess.run([sys.executable, '-c', 'import llvmlite.binding as b; '
+                           'print(b.get_host_cpu_features().flatten())'], capture_output=True,
+                          text=True, env=env, timeout=300, check=True).stdout.strip()
+    env['NUMBA_CPU_FEATURES'] = host
+    out = subprocess.run([sys.executable, '-c', FEATURES], capture_output=True, text=True,
+                         env=env, timeout=300, check=True).stdout.split()
+    assert out[1] == 'False', out

@@ -11,7 +11,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+import sim_nodes.jit  # noqa: F401  numba's code generator is set up there, before these
+from numba import njit  # njit functions make it (the same compiler settings for both)
 
 TWO_PI = 2.0 * math.pi
 

@@ -29,18 +29,50 @@ def normalize_into(s, inv_range, is_angle, out):
 
 
 @kernel(inline='always')
+def normalize_lanes(S, n, inv_range, is_angle, out):
+    """out[k] = ``normalize_into`` of column k of S (D, W), for k < n, the columns side by
+    side (the same arithmetic per coordinate)."""
+    for d in range(S.shape[0]):
+        inv = inv_range[d]
+        row = S[d]
+        if is_angle[d]:
+            for k in range(n):
+                u = row[k] * inv
+                u = u - math.floor(u)
+                out[k, d] = 0.0 if u >= 1.0 else u
+        else:
+            for k in range(n):
+                out[k, d] = row[k] * inv
+
+
+@kernel(inline='always')
 def sq_distances(u, ex, n, is_angle, acc):
-    """acc[j] = squared normalised distance from u to exemplar j of ex[:, :n]."""
-    for j in range(n):
-        acc[j] = 0.0
+    """acc[j] = squared normalised distance from u to exemplar j of ex[:, :n].
+
+    The sum runs over the coordinates in order; the first coordinate's square is stored
+    rather than added to 0.0 (the same value: squares are +0, positive or NaN), which saves
+    a pass over acc."""
+    if u.shape[0] == 0:
+        for j in range(n):
+            acc[j] = 0.0
     for d in range(u.shape[0]):
         ud = u[d]
         row = ex[d]
         if is_angle[d]:
+            if d == 0:
+                for j in range(n):
+                    diff = math.fabs(ud - row[j])
+                    diff = min(diff, 1.0 - diff)  # circular: short way round
+                    acc[j] = diff * diff
+            else:
+                for j in range(n):
+                    diff = math.fabs(ud - row[j])
+                    diff = min(diff, 1.0 - diff)
+                    acc[j] += diff * diff
+        elif d == 0:
             for j in range(n):
-                diff = math.fabs(ud - row[j])
-                diff = min(diff, 1.0 - diff)  # circular: short way round
-                acc[j] += diff * diff
+                diff = ud - row[j]
+                acc[j] = diff * diff
         else:
             for j in range(n):
                 diff = ud - row[j]
