@@ -284,3 +284,22 @@ def test_jobs_group_q_learning_seeds_into_lanes_and_run_longest_first():
         assert max(groups) - min(groups) <= 1
         costs = [budget * len(seeds) for _, seeds, budget in jobs]
         assert costs == sorted(costs, reverse=True)
+
+
+def test_limit_searches_are_jobs_between_the_seed_groups_and_the_single_runs():
+    """Each pending limit search is one job (search, (), width), after every job of several
+    seeds and before every single run; the runs keep their order."""
+    from sapga_ros.training.experiment_set import load_limits
+    from sapga_ros.training.experiments import plan_jobs
+    exps = {e.id: e for e in load_experiments('table2')[0]}
+    searches = [(s, 300 + i) for i, s in enumerate(load_limits('table2'))]
+    assert len(searches) == 3
+    pending = [(exps[i], s, exps[i].steps) for i in (1, 2, 3, 4) for s in range(20)]
+    for workers in (1, 2, 5):
+        runs_only = plan_jobs(pending, workers)
+        jobs = plan_jobs(pending, workers, searches)
+        kinds = ['limit' if not seeds else ('group' if len(seeds) > 1 else 'single')
+                 for _, seeds, _ in jobs]
+        assert kinds == sorted(kinds, key=['group', 'limit', 'single'].index)
+        assert [(search, width) for search, seeds, width in jobs if not seeds] == searches
+        assert [job for job in jobs if job[1]] == runs_only

@@ -47,17 +47,25 @@ def run_key(name: str, exp: Experiment, seed: int, budget: int) -> dict:
 
 
 def _job(args: tuple) -> list[tuple[tuple, dict]]:
-    """((experiment, seed, budget), run) of each seed of a job (experiment, seeds, budget)."""
+    """((experiment, seed, budget), run) of each seed of a job (experiment, seeds, budget);
+    for a physical-limit search (search, (), beam width): ((search, None, width), the
+    search's document)."""
     exp, seeds, budget = args
+    if isinstance(exp, LimitSearch):
+        return [((exp, None, budget), _search(exp, budget))]
     return [((exp, seed, budget), run)
             for seed, run in zip(seeds, run_seeds(exp, list(seeds), budget))]
 
 
-def plan_jobs(pending: list[tuple], workers: int) -> list[tuple]:
+def plan_jobs(pending: list[tuple], workers: int,
+              searches: list[tuple[LimitSearch, int]] = ()) -> list[tuple]:
     """The jobs (experiment, seeds, budget) of the pending runs (experiment, seed, budget),
     longest first.  A Q-learning row's seeds are grouped to learn side by side (at most
     ``LANE_BLOCK`` lanes; as many groups as workers while seeds last); any other run is a
-    job of its own."""
+    job of its own.  The physical-limit ``searches`` (search, beam width) are jobs
+    (search, (), width) after the jobs of several seeds and before the single runs: a search
+    takes about as long as a long single run, and in the pool it no longer waits for every
+    run to finish."""
     rows: dict[tuple, list[int]] = {}
     jobs = []
     for exp, seed, budget in pending:
@@ -73,7 +81,9 @@ def plan_jobs(pending: list[tuple], workers: int) -> list[tuple]:
             n = size + (g < extra)
             jobs.append((exp, tuple(seeds[at:at + n]), budget))
             at += n
-    return sorted(jobs, key=lambda job: -job[2] * len(job[1]))
+    jobs.sort(key=lambda job: -job[2] * len(job[1]))
+    at = sum(1 for job in jobs if len(job[1]) > 1)
+    return jobs[:at] + [(search, (), width) for search, width in searches] + jobs[at:]
 
 
 class _Progress:
@@ -142,9 +152,15 @@ def run_experiments(name: str, out: str | os.PathLike, only: list[int] | None = 
     reused = len(done)
     progress = _Progress(len(done) + len(pending), len(done), log)
     workers = workers or os.cpu_count() or 1
+    searching = [(search, _width(search, scale)) for search in searches
+                 if not _found(out, search, log)]
     try:
-        for finished in _execute(plan_jobs(pending, workers), workers, backend, address):
+        for finished in _execute(plan_jobs(pending, workers, searching), workers, backend,
+                                 address):
             for (exp, seed, budget), run in finished:
+                if isinstance(exp, LimitSearch):
+                    _write_limit(out, exp, run, log)
+                    continue
                 key = run_key(name, exp, seed, budget)
                 write_json(run_path(out, exp, seed), {'key': key, 'run': run})
                 done[exp.id, seed] = run['final']
@@ -152,8 +168,6 @@ def run_experiments(name: str, out: str | os.PathLike, only: list[int] | None = 
                               f"{run['final']['delta_star']:.4f}")
     finally:
         progress.close()
-    for search in searches:
-        _limit(out, search, scale, log)
     command = ' '.join(['sapga experiment', name, '--out', str(out)]
                        + (['--only', ','.join(map(str, only))] if only else [])
                        + (['--seeds', str(seeds)] if seeds is not None else [])
@@ -166,29 +180,47 @@ def run_experiments(name: str, out: str | os.PathLike, only: list[int] | None = 
     return _summarise(name, exps, row_seeds, budgets, out, log)
 
 
-def _limit(out: Path, search: LimitSearch, scale: float, log) -> None:
-    """Run a physical-limit search into ``out/limits/`` unless a sound file is there."""
+def _width(search: LimitSearch, scale: float) -> int:
+    """The beam width of a search in a run of the set at ``scale``."""
+    return max(200, int(search.width * min(scale, 1.0)))
+
+
+def _found(out: Path, search: LimitSearch, log) -> bool:
+    """Whether ``out/limits/`` holds a sound file of the search (a damaged one is said and
+    searched again)."""
+    from sapga_ros.analysis.limit_file import read_limit
+    path = out / 'limits' / search.file_name
+    if not (path.exists() or path.is_symlink()):
+        return False
+    try:
+        read_limit(path)
+        return True
+    except DataFileError as exc:
+        log(f'{str(exc)[:300]}; searching it again')
+        return False
+
+
+def _search(search: LimitSearch, width: int) -> dict:
+    """A physical-limit search (``sapga_ros.analysis.limit``), as the document its file
+    holds (in a worker)."""
     from sapga_ros.analysis.limit import beam_limit
-    from sapga_ros.analysis.limit_file import limit_document, read_limit
+    from sapga_ros.analysis.limit_file import limit_document
     from sim_nodes.goal import alternative_goal
     from sim_nodes.problem import load_problem
-    path = out / 'limits' / search.file_name
-    width = max(200, int(search.width * min(scale, 1.0)))
-    if path.exists() or path.is_symlink():
-        try:
-            read_limit(path)
-            return
-        except DataFileError as exc:
-            log(f'{str(exc)[:300]}; searching it again')
     problem = load_problem(search.problem)
     if search.alternative_goal:
         problem = alternative_goal(problem)
     start = time.perf_counter()
     limit = beam_limit(problem, width=width, cells=search.cells, per_cell=search.per_cell)
-    write_json(path, {**limit_document(limit), 'alternative_goal': search.alternative_goal,
-                      'seconds': time.perf_counter() - start})
+    return {**limit_document(limit), 'alternative_goal': search.alternative_goal,
+            'seconds': time.perf_counter() - start}
+
+
+def _write_limit(out: Path, search: LimitSearch, doc: dict, log) -> None:
+    """Write a finished search into ``out/limits/``."""
+    write_json(out / 'limits' / search.file_name, doc)
     log(f'limit of {search.problem}{" (alternative goal)" if search.alternative_goal else ""}: '
-        f'delta {limit.delta:.5f} at step {limit.step}')
+        f"delta {doc['delta']:.5f} at step {doc['step']}")
 
 
 def _execute(jobs: list[tuple], workers: int, backend: str = 'local',
