@@ -10,6 +10,7 @@ import dataclasses
 import itertools
 
 import numpy as np
+import pytest
 
 from sapga_ros.evaluation.evaluator import Evaluator
 from sapga_ros.policies.exemplar import ExemplarPolicy
@@ -85,23 +86,28 @@ def test_training_logs_both_goal_readings_on_the_pdip():
     assert 'delta_star_alt' not in rows[-1]
 
 
-def test_state_action_loop_equals_the_general_loop_bit_for_bit():
+@pytest.mark.parametrize('disturbance', ['none', 'field', 'push'])
+def test_state_action_loop_equals_the_general_loop_bit_for_bit(disturbance):
     """The engine's loop for state-action policies without a controller (the lanes'
     states normalised side by side, the nearest exemplar found directly) computes what the
     general loop computes through ``choose`` (forced here by a controller row of mode
-    none): every result of every policy, and the traced episode."""
+    none): every result of every policy, and the traced episode, undisturbed and under
+    draws (noise, latency, mismatch, pushes)."""
     from sapga_ros.optim.operators import random_exemplars
+    from sim_nodes.disturbance import load_disturbance
     rng = np.random.default_rng(7)
+    draws = load_disturbance(disturbance)
+    keys = np.column_stack([np.full(37, 3), np.full(37, 1), np.arange(37), np.arange(37) % 4])
     for name, delta in (('acrobot', 0.0), ('acrobot', 0.4), ('pdip', 0.3), ('pdip_hold', None),
                         ('mountain_car', None)):
         problem = load_problem(name)
         policies = [random_exemplars(problem, int(rng.integers(1, 120)), rng, 'state-action')
                     for _ in range(37)]
-        direct = Evaluator(problem, delta=delta)
-        general = Evaluator(problem, delta=delta)
+        direct = Evaluator(problem, delta=delta, disturbance=draws)
+        general = Evaluator(problem, delta=delta, disturbance=draws)
         general.catch = np.zeros(2)              # mode none: choose falls through to select
         assert general.controls(policies).shape == (37, 2)
-        a, b = direct.evaluate(policies), general.evaluate(policies)
+        a, b = direct.evaluate(policies, keys), general.evaluate(policies, keys)
         for field in ('returns', 'steps', 'delta_star', 'reached', 'first_entry', 'held',
                       'contacts'):
             assert getattr(a, field).tobytes() == getattr(b, field).tobytes(), (name, field)
@@ -110,7 +116,8 @@ def test_state_action_loop_equals_the_general_loop_bit_for_bit():
             assert a.reached.any() and not a.reached.all(), name
         if name == 'pdip_hold':                  # and some touch the end stop
             assert a.contacts.any()
-        ea, eb = direct.episode(policies[5]), general.episode(policies[5])
+        ea, eb = direct.episode(policies[5], tuple(keys[5])), \
+            general.episode(policies[5], tuple(keys[5]))
         for field in ('states', 'actions', 'exemplars', 'rewards', 'used'):
             assert getattr(ea, field).tobytes() == getattr(eb, field).tobytes(), field
         assert (ea.ret, ea.steps, ea.delta_star, ea.reached, ea.first_entry, ea.held,

@@ -15,9 +15,10 @@ vectorises).  A finished lane takes the next policy of its thread's share.  Arit
 lane does not depend on the other lanes, so every result is that of a lone episode.  After
 the step the lanes' delta(s), returns and counts are accounted side by side (kept per lane,
 written to the policy's entries when its episode ends).  State-action policies without a
-controller or disturbances take their own selection loop (the nearest exemplar's action,
-what ``choose`` returns for them): without the other styles' and the controllers' code in
-its body the compiler keeps it in registers, which roughly halves the selection's cost.
+controller take their own selection loop (the nearest exemplar's action, what ``choose``
+returns for them; the disturbances' draws as in the general loop): without the other
+styles' and the controllers' code in its body the compiler keeps it in registers, which
+roughly halves the selection's cost.
 
 Packed policies (``Evaluator.pack``): ex (P, D, L) and ex2 (P, D, L or 1) normalised
 states, act (P, L) action values, val (P, L) values, lengths (P,).  ``sel`` are the
@@ -102,10 +103,10 @@ def run_share(model, style, ex, ex2, act, val, lengths, first, stop, s0, p, inv_
     disturbed = dist[ON] > 0.0
     fail = not np.isnan(fail_charge)          # an end-stop contact ends the episode
     own_params = disturbed and dist[MISMATCH] > 0.0   # each lane steps its own plant
-    # state-action without a controller (a 0 column) or draws: its own loop, where the
-    # compiler knows the style (the other styles' code leaves it)
-    plain = style == STATE_ACTION and not disturbed and ctl.shape[1] == 1
-    obs = np.empty((dim, LANES))                # what the selector sees
+    # state-action without a controller (a 0 column): its own loop, where the compiler
+    # knows the style (the other styles' and the controllers' code leaves it)
+    plain = style == STATE_ACTION and ctl.shape[1] == 1
+    obs = np.zeros((dim, LANES))                # what the selector sees
     plant = np.empty((LANES, p.shape[0]))      # each lane's plant parameters (idle: p)
     for lane in range(LANES):
         plant[lane] = p
@@ -149,8 +150,14 @@ def run_share(model, style, ex, ex2, act, val, lengths, first, stop, s0, p, inv_
                 active += 1
         if active == 0:
             break
-        if plain:                               # choose without a controller or draws
-            normalize_lanes(S, LANES, inv_range, is_angle, U)
+        if plain:                               # choose without a controller
+            if disturbed:                       # the selector sees the state plus noise
+                for lane in range(LANES):
+                    if pol[lane] >= 0:
+                        observe(dist, key[lane], n[lane], S[:, lane], is_angle, obs[:, lane])
+                normalize_lanes(obs, LANES, inv_range, is_angle, U)
+            else:
+                normalize_lanes(S, LANES, inv_range, is_angle, U)
             for lane in range(LANES):
                 k = pol[lane]
                 if k >= 0:
@@ -158,6 +165,11 @@ def run_share(model, style, ex, ex2, act, val, lengths, first, stop, s0, p, inv_
                     used[k, j] = True
                     chosen[lane] = j
                     a[lane] = act[k, j]
+            if disturbed:                       # late, scaled commands; pushes
+                for lane in range(LANES):
+                    if pol[lane] >= 0:
+                        a[lane] = command(history[lane], n[lane], a[lane], gain[lane])
+                        push(n[lane], push_at[lane], push_dv[lane], push_on[lane], S[:, lane])
         else:
             for lane in range(LANES):
                 k = pol[lane]
