@@ -40,12 +40,12 @@ def _wide_vectors() -> None:
     """Let the compiler use 512-bit vectors on a CPU with AVX-512 (LLVM prefers 256-bit ones
     there by default).  The lane loops compute the same bits at any vector width; the
     batch kernel runs about a fifth faster.  A NUMBA_CPU_NAME or NUMBA_CPU_FEATURES set by
-    the user is left as it is.  Set before any kernel is compiled: numba reads it when it
-    makes its code generator."""
+    the user is left as it is, and NUMBA_ENABLE_AVX=0 turns AVX-512 off here too.  Set
+    before any kernel is compiled: numba reads it when it makes its code generator."""
     if os.environ.get('NUMBA_CPU_FEATURES') or os.environ.get('NUMBA_CPU_NAME'):
         return
-    import llvmlite.binding as llvm
-    features = llvm.get_host_cpu_features().flatten()
+    from numba.core.codegen import get_host_cpu_features   # honours NUMBA_ENABLE_AVX
+    features = get_host_cpu_features()
     if '+avx512f' in features.split(','):
         numba.core.config.CPU_FEATURES = features + ',-prefer-256-bit'
 

@@ -346,3 +346,19 @@ def test_a_folder_or_device_among_the_limits_is_one_line_from_report(exp_dir):
     (exp_dir / 'limits' / 'acrobot.json').mkdir()
     one_line_error(in_process('experiment', 'report', str(exp_dir)), 'acrobot.json',
                    'not a regular file')
+
+
+def test_a_ray_resume_that_only_searches_limits_checks_the_address_first(tmp_path):
+    """Every run done, a limit file missing: the search goes to Ray, so an address where
+    nothing listens is one line and exit 2 (not a connection retried for ever); the runs
+    already written stay as they were."""
+    env = _conf_with_set(tmp_path, 'limits: [{problem: acrobot}]\n')
+    out = tmp_path / 'o'
+    first = in_process('experiment', 'bad', '--out', str(out), '--scale', '0.001', env=env)
+    assert first.returncode == 0, first.stderr
+    runs = {p.name: p.read_bytes() for p in (out / 'runs').iterdir()}
+    (out / 'limits' / 'acrobot.json').unlink()
+    done = sapga('experiment', 'bad', '--out', str(out), '--scale', '0.001', '--backend', 'ray',
+                 '--address', '127.0.0.1:1', env=env)
+    one_line_error(done, 'no Ray cluster reachable')
+    assert {p.name: p.read_bytes() for p in (out / 'runs').iterdir()} == runs

@@ -64,7 +64,7 @@ print('+avx512f' in host, '-prefer-256-bit' in used)
 def test_the_code_generator_uses_wide_vectors_on_avx512_unless_the_user_says_otherwise():
     """On an AVX-512 CPU every kernel of the process (the straightforward yardstick's
     too) is compiled with 512-bit vectors preferred; a NUMBA_CPU_FEATURES of the user's is
-    left alone."""
+    left alone, and NUMBA_ENABLE_AVX=0 keeps AVX (and so the wide vectors) off."""
     user = ('NUMBA_CPU_FEATURES', 'NUMBA_CPU_NAME')
     env = {k: v for k, v in os.environ.items() if k not in user}
     env['PYTHONPATH'] = os.pathsep.join([str(ROOT), os.environ.get('PYTHONPATH', '')])
@@ -74,7 +74,7 @@ def test_the_code_generator_uses_wide_vectors_on_avx512_unless_the_user_says_oth
     host = subprocess.run([sys.executable, '-c', 'import llvmlite.binding as b; '
                            'print(b.get_host_cpu_features().flatten())'], capture_output=True,
                           text=True, env=env, timeout=300, check=True).stdout.strip()
-    env['NUMBA_CPU_FEATURES'] = host
-    out = subprocess.run([sys.executable, '-c', FEATURES], capture_output=True, text=True,
-                         env=env, timeout=300, check=True).stdout.split()
-    assert out[1] == 'False', out
+    for name, value in (('NUMBA_CPU_FEATURES', host), ('NUMBA_ENABLE_AVX', '0')):
+        out = subprocess.run([sys.executable, '-c', FEATURES], capture_output=True, text=True,
+                             env={**env, name: value}, timeout=300, check=True).stdout.split()
+        assert out[1] == 'False', (name, out)

@@ -52,7 +52,10 @@ def _job(args: tuple) -> list[tuple[tuple, dict]]:
     search's document)."""
     exp, seeds, budget = args
     if isinstance(exp, LimitSearch):
-        return [((exp, None, budget), _search(exp, budget))]
+        try:
+            return [((exp, None, budget), _search(exp, budget))]
+        except Exception as exc:      # raised by the caller once every run is written
+            return [((exp, None, budget), exc)]
     return [((exp, seed, budget), run)
             for seed, run in zip(seeds, run_seeds(exp, list(seeds), budget))]
 
@@ -145,21 +148,25 @@ def run_experiments(name: str, out: str | os.PathLike, only: list[int] | None = 
                 done[exp.id, seed] = run['final']
     log(f'{name}: {len(exps)} experiments x {n_seeds} seeds; {len(done)} runs done before, '
         f'{len(pending)} to run')
-    if backend == 'ray' and address and pending:
+    searching = [(search, _width(search, scale)) for search in searches
+                 if not _found(out, search, log)]
+    if backend == 'ray' and address and (pending or searching):
         from sapga_ros.training.ray_address import reach
         reach(address)
     started = time.perf_counter()
     reused = len(done)
     progress = _Progress(len(done) + len(pending), len(done), log)
     workers = workers or os.cpu_count() or 1
-    searching = [(search, _width(search, scale)) for search in searches
-                 if not _found(out, search, log)]
+    failed = []
     try:
         for finished in _execute(plan_jobs(pending, workers, searching), workers, backend,
                                  address):
             for (exp, seed, budget), run in finished:
-                if isinstance(exp, LimitSearch):
-                    _write_limit(out, exp, run, log)
+                if isinstance(exp, LimitSearch):   # a search's failure waits for the runs
+                    if isinstance(run, Exception):
+                        failed.append(run)
+                    else:
+                        _write_limit(out, exp, run, log)
                     continue
                 key = run_key(name, exp, seed, budget)
                 write_json(run_path(out, exp, seed), {'key': key, 'run': run})
@@ -168,6 +175,8 @@ def run_experiments(name: str, out: str | os.PathLike, only: list[int] | None = 
                               f"{run['final']['delta_star']:.4f}")
     finally:
         progress.close()
+    if failed:
+        raise failed[0]
     command = ' '.join(['sapga experiment', name, '--out', str(out)]
                        + (['--only', ','.join(map(str, only))] if only else [])
                        + (['--seeds', str(seeds)] if seeds is not None else [])

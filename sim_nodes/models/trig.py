@@ -40,17 +40,18 @@ def sincos(x):
     hz = 0.5 * z
     w = 1.0 - hz
     c = w + (((1.0 - w) - hz) + z * z * (C1 + z * (C2 + z * (C3 + z * (C4 + z * (C5 + z * C6))))))
-    # quadrant q = n mod 4 (a float: loops over many states vectorise) picks and signs the
-    # kernels' results with selects: sin is c in quadrants 1 and 3, negative in 2 and 3; cos
-    # is s in 1 and 3, negative in 1 and 2.  s + 0.0 turns a -0.0 into +0.0, as the
-    # arithmetic blend 1.0 * s + 0.0 * c of earlier versions did (c is never 0), so the
-    # results keep their bits.
+    # quadrant q = n mod 4 selects and signs the results; float arithmetic only (no
+    # branches, which a scalar call would mispredict) so that loops over many states
+    # vectorise; x * 1.0 + y * 0.0 == x exactly (and NaN when y is infinite, as it must).
+    # sin < 0 in quadrants 2 and 3, cos < 0 in quadrants 1 and 2 (of r): the signs from
+    # two floors, each an exact +-1.0.
     q = n - 4.0 * np.floor(0.25 * n)
-    odd = (q == 1.0) | (q == 3.0)
-    s0 = s + 0.0
-    sv = c if odd else s0
-    cv = s0 if odd else c
-    return (-sv if q >= 2.0 else sv), (-cv if (q == 1.0) | (q == 2.0) else cv)
+    half = np.floor(0.5 * q)                     # 1.0 in quadrants 2 and 3
+    odd = q - 2.0 * half                         # 1.0 in quadrants 1 and 3
+    even = 1.0 - odd
+    sign_s = 1.0 - 2.0 * half
+    sign_c = sign_s * (1.0 - 2.0 * odd)
+    return sign_s * (odd * c + even * s), sign_c * (odd * s + even * c)
 
 
 @kernel(inline='always')
