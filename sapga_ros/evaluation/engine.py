@@ -150,14 +150,14 @@ def run_share(model, style, ex, ex2, act, val, lengths, first, stop, s0, p, inv_
                 active += 1
         if active == 0:
             break
+        seen = S                                # what the selector sees
+        if disturbed:                           # the state plus sensor noise
+            for lane in range(LANES):
+                if pol[lane] >= 0:
+                    observe(dist, key[lane], n[lane], S[:, lane], is_angle, obs[:, lane])
+            seen = obs
         if plain:                               # choose without a controller
-            if disturbed:                       # the selector sees the state plus noise
-                for lane in range(LANES):
-                    if pol[lane] >= 0:
-                        observe(dist, key[lane], n[lane], S[:, lane], is_angle, obs[:, lane])
-                normalize_lanes(obs, LANES, inv_range, is_angle, U)
-            else:
-                normalize_lanes(S, LANES, inv_range, is_angle, U)
+            normalize_lanes(seen, LANES, inv_range, is_angle, U)
             for lane in range(LANES):
                 k = pol[lane]
                 if k >= 0:
@@ -165,25 +165,18 @@ def run_share(model, style, ex, ex2, act, val, lengths, first, stop, s0, p, inv_
                     used[k, j] = True
                     chosen[lane] = j
                     a[lane] = act[k, j]
-            if disturbed:                       # late, scaled commands; pushes
-                for lane in range(LANES):
-                    if pol[lane] >= 0:
-                        a[lane] = command(history[lane], n[lane], a[lane], gain[lane])
-                        push(n[lane], push_at[lane], push_dv[lane], push_on[lane], S[:, lane])
         else:
             for lane in range(LANES):
                 k = pol[lane]
-                if k < 0:
-                    continue
-                seen = S[:, lane]
-                if disturbed:
-                    observe(dist, key[lane], n[lane], S[:, lane], is_angle, obs[:, lane])
-                    seen = obs[:, lane]
-                chosen[lane], a[lane], progress[lane] = choose(
-                    style, model, seen, ex[k], ex2[k], act[k], val[k], lengths[k],
-                    actions, p, inv_range, is_angle, radius2, goal_u, progress[lane],
-                    used[k], u, acc, w_state, w_act, w_rew, ctl[k], best, x, memory[lane])
-                if disturbed:
+                if k >= 0:
+                    chosen[lane], a[lane], progress[lane] = choose(
+                        style, model, seen[:, lane], ex[k], ex2[k], act[k], val[k],
+                        lengths[k], actions, p, inv_range, is_angle, radius2, goal_u,
+                        progress[lane], used[k], u, acc, w_state, w_act, w_rew, ctl[k], best,
+                        x, memory[lane])
+        if disturbed:                           # late, scaled commands; pushes
+            for lane in range(LANES):
+                if pol[lane] >= 0:
                     a[lane] = command(history[lane], n[lane], a[lane], gain[lane])
                     push(n[lane], push_at[lane], push_dv[lane], push_on[lane], S[:, lane])
         if trace:
