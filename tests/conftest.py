@@ -27,6 +27,20 @@ def own_ros_domain() -> Iterator[int]:
         yield domain
 
 
+@pytest.fixture
+def ros_context(monkeypatch):
+    """An rclpy context of its own claimed domain (localhost discovery), shut down after."""
+    import rclpy
+    from rclpy.context import Context
+    with ros_domain() as domain:
+        monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+        monkeypatch.setenv('ROS_DOMAIN_ID', str(domain))
+        ctx = Context()
+        rclpy.init(context=ctx, domain_id=domain)
+        yield ctx
+        rclpy.try_shutdown(context=ctx)
+
+
 @pytest.fixture(scope='session')
 def acrobot_problem() -> Problem:
     """The acrobot of msg_configs/acrobot.yaml (SPEC 2.1)."""

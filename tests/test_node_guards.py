@@ -1,7 +1,8 @@
 """Hostile load on the sim, policy and recorder nodes over real DDS: a flood their queues
 cannot hold is counted and warned about (sim_nodes/ros/dropped.py), and an exception in any
-callback (timer, subscription, service) is one log line while the node goes on
-(sim_nodes/ros/runner.py: spin_guarded, as every executable spins)."""
+callback (timer, subscription, service) is one log line while the node goes on, on either
+executor the sim and the policy node run on (sim_nodes/ros/guarded.py: the nodes' guarded
+callbacks; sim_nodes/ros/runner.py: spin_guarded, as every executable spins)."""
 from __future__ import annotations
 
 import threading
@@ -12,7 +13,6 @@ from typing import Any, Callable
 import numpy as np
 import pytest
 import rclpy
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float64, String
 from std_srvs.srv import Trigger
@@ -24,6 +24,7 @@ from sapga_ros.nodes.policy_node import PolicyNode
 from sapga_ros.nodes.recorder_node import RecorderNode
 from sim_nodes.problem import load_problem
 from sim_nodes.ros.common import JointStateLayout
+from sim_nodes.ros.executors import make_executor
 from sim_nodes.ros.runner import spin_guarded
 from sim_nodes.ros.sim_node import SimNode
 
@@ -34,13 +35,13 @@ WAIT_S = 60.0
 class Guarded:
     """Nodes of one context spun by ``spin_guarded`` on a thread, as the executables spin."""
 
-    def __init__(self, monkeypatch: pytest.MonkeyPatch) -> None:
+    def __init__(self, monkeypatch: pytest.MonkeyPatch, executor: str = 'single') -> None:
         self.domain = domain = claim_domain()
         monkeypatch.setenv('ROS_DOMAIN_ID', str(domain))
         monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
         self.context = rclpy.Context()
         rclpy.init(context=self.context, domain_id=domain)
-        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor = make_executor(executor, self.context)
         self.nodes: list[Any] = []
         self.thread: threading.Thread | None = None
 
@@ -72,6 +73,19 @@ def guarded(monkeypatch):
     g = Guarded(monkeypatch)
     yield g
     g.close()
+
+
+@pytest.fixture
+def guarded_on(monkeypatch):
+    """``guarded_on(executor)``: a ``Guarded`` on that executor (closed after the test)."""
+    made: list[Guarded] = []
+
+    def make(executor: str) -> Guarded:
+        made.append(Guarded(monkeypatch, executor))
+        return made[-1]
+    yield make
+    for g in made:
+        g.close()
 
 
 def wait(condition: Callable[[], Any], what: str, timeout: float = WAIT_S) -> Any:
@@ -243,12 +257,15 @@ def fragile_entities(guarded: Guarded, node: Any, calls: Counter[str]) -> Callab
     return trigger
 
 
-@pytest.mark.parametrize('kind', ['sim', 'policy', 'recorder'])
+@pytest.mark.parametrize('kind, executor', [('sim', 'events'), ('sim', 'single'),
+                                            ('policy', 'events'), ('policy', 'single'),
+                                            ('recorder', 'single')])
 def test_a_raising_callback_of_any_kind_is_one_line_and_the_node_goes_on(
-        guarded, tmp_path, capfd, kind):
-    """Timer, subscription and service callbacks that raise are logged as one line each; the
-    node keeps doing its own work (the sim steps, the policy node answers, the recorder
-    answers its ready service)."""
+        guarded_on, tmp_path, capfd, kind, executor):
+    """Timer, subscription and service callbacks that raise are logged as one line each (no
+    traceback, on either executor the node runs on); the node keeps doing its own work (the
+    sim steps, the policy node answers, the recorder answers its ready service)."""
+    guarded = guarded_on(executor)
     acrobot = load_problem('acrobot')
     if kind == 'sim':
         node = guarded.add(SimNode, {'real_time_factor': 20.0, 'wait_for_policy': False})
@@ -279,6 +296,7 @@ def test_a_raising_callback_of_any_kind_is_one_line_and_the_node_goes_on(
         assert f'ValueError: {what} second line' in err, err
     failures = [line for line in err.splitlines() if 'callback failed' in line]
     assert all(line.endswith(' second line') for line in failures), failures
+    assert 'Traceback' not in err and 'FATAL' not in err and 'occurred at' not in err, err
     if kind == 'sim':
         before = node.total_steps
         wait(lambda: node.total_steps > before + 5, 'the sim to step on')

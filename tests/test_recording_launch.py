@@ -20,8 +20,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import rclpy
-from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rosbags.highlevel import AnyReader
@@ -181,17 +179,6 @@ def test_a_launch_whose_bag_is_incomplete_exits_1():
     lacking = SwingupResult([end], [], offline, True, 'the recording b is incomplete: ...')
     assert print_swingup(Supervisor(), whole) == 0
     assert print_swingup(Supervisor(), lacking) == 1
-
-
-@pytest.fixture
-def ros_context(monkeypatch):
-    with ros_domain() as domain:
-        monkeypatch.setenv('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-        monkeypatch.setenv('ROS_DOMAIN_ID', str(domain))
-        ctx = Context()
-        rclpy.init(context=ctx, domain_id=domain)
-        yield ctx
-        rclpy.try_shutdown(context=ctx)
 
 
 def wait(condition, what: str, timeout: float = 20.0) -> None:

@@ -6,14 +6,15 @@ measured in the same process (the compiled offline episode kernel).
                                   [--realtime]
 
 * lockstep loop: ``SimNode`` (lockstep) and ``PolicyNode`` exchange state and command over
-  Fast DDS, both nodes on one executor thread of this process (``--processes``: the two
-  executables as child processes, timed from the episode events);
+  Fast DDS, both nodes on one executor thread of this process, on each executor the nodes
+  can run on (``events``, their default, and ``single``); ``--processes``: the two
+  executables as child processes, timed from the episode events;
 * selection: ``PolicyNode.select`` (JointState -> state, normalise, nearest) per call, and
   the whole state callback including the two publishes;
-* floors (``ros_floor.py``): a bare JointState ping-pong between two nodes on the
-  ``SingleThreadedExecutor`` the nodes run on, and on rclpy's ``EventsExecutor``, with the
-  lockstep loop's share of each; ``--realtime``: the state->command latency of the realtime
-  sim and policy node, matched by header stamp.
+* floors (``ros_floor.py``): a bare JointState ping-pong between two nodes on each of the
+  two executors, with the share of it the lockstep loop on the same executor reaches;
+  ``--realtime``: the state->command latency of the realtime sim and policy node, matched
+  by header stamp.
 
 rclpy is imported inside the functions: importing this module costs nothing.
 """
@@ -33,6 +34,7 @@ from sapga_ros.bench.ros_floor import ping_pong, realtime_latency, start_pair, s
 from sapga_ros.evaluation.evaluator import Evaluator
 from sapga_ros.policies.exemplar import ExemplarPolicy
 from sim_nodes.problem import Problem, load_problem
+from sim_nodes.ros.executors import DEFAULT_EXECUTOR, EXECUTORS, make_executor
 
 N_EXEMPLARS = 100  # L_max of SAP-GA: the largest policy the trainer produces
 
@@ -103,10 +105,10 @@ def bench_selection(problem: Problem, policy: ExemplarPolicy, repeats: int = 200
     return {'select_us': select_us, 'callback_us': callback_us}
 
 
-def bench_lockstep(problem: Problem, policy: ExemplarPolicy, steps: int = 4000) -> dict:
+def bench_lockstep(problem: Problem, policy: ExemplarPolicy, steps: int = 4000,
+                   executor: str = DEFAULT_EXECUTOR) -> dict:
     """MDP steps/s of a lockstep sim <-> policy loop over DDS, one executor thread."""
     import rclpy
-    from rclpy.executors import SingleThreadedExecutor
     from rclpy.parameter import Parameter
 
     from sapga_ros.nodes.policy_node import PolicyNode, PreparedPolicy
@@ -117,7 +119,7 @@ def bench_lockstep(problem: Problem, policy: ExemplarPolicy, steps: int = 4000) 
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=domain)
     try:
-        ex = SingleThreadedExecutor(context=context)  # the executor the nodes run on
+        ex = make_executor(executor, context)
         sim = SimNode(default_problem=problem.name, context=context, parameter_overrides=[
             Parameter('mode', value='lockstep'), Parameter('republish_period', value=0.05)])
         pol = PolicyNode(context=context, parameter_overrides=[
@@ -148,6 +150,7 @@ def bench_lockstep_processes(problem: Problem, policy: ExemplarPolicy,
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
     from std_msgs.msg import String
+    from std_srvs.srv import Trigger
 
     from sim_nodes.ros.common import EVENT_QOS, topic_names
 
@@ -161,12 +164,20 @@ def bench_lockstep_processes(problem: Problem, policy: ExemplarPolicy,
         rclpy.init(context=context, domain_id=domain)
         events: list[tuple[float, dict]] = []
         node = Node('bench_probe', context=context)
-        node.create_subscription(String, topic_names(problem)['event'], lambda m: events.append(
-            (time.perf_counter(), json.loads(m.data))), EVENT_QOS)
+        sub = node.create_subscription(String, topic_names(problem)['event'],
+                                       lambda m: events.append((time.perf_counter(),
+                                                                json.loads(m.data))), EVENT_QOS)
+
+        def ready(request, response):
+            # the sim's recorder gate: start once this probe hears the events
+            response.success = sub.get_publisher_count() > 0
+            return response
+        node.create_service(Trigger, 'bench_probe/ready', ready)
         ex = SingleThreadedExecutor(context=context)
         ex.add_node(node)
         procs = start_pair(problem, path, env, ['-p', 'mode:=lockstep', '-p',
-                                                f'max_episodes:={episodes + 1}'])
+                                                f'max_episodes:={episodes + 1}', '-p',
+                                                'wait_for_recorder:=bench_probe'])
         try:
             deadline = time.monotonic() + 120.0
             while time.monotonic() < deadline and not any(
@@ -203,19 +214,18 @@ def main(argv: list[str] | None = None) -> int:
           f'({sel["select_us"] / base_us:6.1f} x kernel step)')
     print(f'policy node callback: {sel["callback_us"]:8.1f} us/step  '
           f'({sel["callback_us"] / base_us:6.1f} x kernel step, incl. 2 publishes)')
-    runs = [('lockstep, 1 thread', bench_lockstep(problem, policy, args.steps))]
+    runs = [(f'lockstep, 1 thread, {kind}', bench_lockstep(problem, policy, args.steps, kind))
+            for kind in EXECUTORS]
     if args.processes:
         runs.append(('lockstep, 2 processes', bench_lockstep_processes(problem, policy)))
     for label, r in runs:
-        print(f'{label + ":":27s} {r["steps_per_s"]:8,.0f} steps/s  ({r["steps"]} steps in '
+        print(f'{label + ":":30s} {r["steps_per_s"]:8,.0f} steps/s  ({r["steps"]} steps in '
               f'{r["seconds"]:.2f} s; kernel is {1e6 / base_us / r["steps_per_s"]:,.0f} x '
               f'faster)')
-    lockstep = runs[0][1]['steps_per_s']
-    for kind, label in (('single', 'SingleThreadedExecutor, the nodes\''),
-                        ('events', 'EventsExecutor')):
-        r = ping_pong(problem, _domain(), kind, args.steps)
-        print(f'JointState ping-pong ({label}): {r["trips_per_s"]:8,.0f} round trips/s; '
-              f'lockstep 1 thread is {lockstep / r["trips_per_s"]:.0%} of it')
+    for kind, (_, r) in zip(EXECUTORS, runs):
+        floor = ping_pong(problem, _domain(), kind, args.steps)
+        print(f'JointState ping-pong, {kind}: {floor["trips_per_s"]:8,.0f} round trips/s; '
+              f'lockstep 1 thread on it is {r["steps_per_s"] / floor["trips_per_s"]:.0%} of it')
     if args.realtime:
         r = realtime_latency(problem, policy, _domain())
         print(f'realtime state->command latency at {r["hz"]:.0f} Hz, {r["steps"]} steps '

@@ -1,10 +1,11 @@
 """The floors and the latency of the ROS 2 shell, measured beside the lockstep loop.
 
 * ``ping_pong``: round trips/s of a bare rclpy ``sensor_msgs/JointState`` ping-pong between
-  two nodes of this process on one executor (``single``: the ``SingleThreadedExecutor`` the
-  nodes run on; ``events``: ``rclpy.experimental.EventsExecutor``), with the problem's
-  state message and the nodes' QoS.  One lockstep MDP step is one such round trip plus the
-  work of both nodes, so the single-threaded ping-pong is the floor the loop cannot beat.
+  two nodes of this process on one executor (``events``: ``rclpy.experimental.
+  EventsExecutor``, the nodes' default; ``single``: the ``SingleThreadedExecutor``), with
+  the problem's state message and the nodes' QoS.  One lockstep MDP step is one such round
+  trip plus the work of both nodes, so the ping-pong on the loop's executor is the floor the
+  loop cannot beat.
 * ``realtime_latency``: the simulator (realtime) and the policy node as two child
   processes; a probe node records when it receives each state and the command whose header
   stamp names that state (the policy node stamps its answer with the state's stamp), so the
@@ -27,6 +28,7 @@ import numpy as np
 from sapga_ros.policies.exemplar import ExemplarPolicy
 from sim_nodes.models.registry import sim_executable
 from sim_nodes.problem import Problem
+from sim_nodes.ros.executors import make_executor
 
 
 def start_pair(problem: Problem, policy_file: Path, env: dict, sim_args: list[str]
@@ -52,14 +54,6 @@ def stop_pair(procs: list[subprocess.Popen], executor, node, context) -> None:
     context.try_shutdown()
 
 
-def _executor(kind: str, context):
-    from rclpy.executors import SingleThreadedExecutor
-    if kind == 'events':
-        from rclpy.experimental import EventsExecutor
-        return EventsExecutor(context=context)
-    return SingleThreadedExecutor(context=context)
-
-
 def ping_pong(problem: Problem, domain: int, executor: str = 'single',
               trips: int = 4000) -> dict:
     """Round trips/s of a JointState ping-pong between two nodes on one executor."""
@@ -74,7 +68,7 @@ def ping_pong(problem: Problem, domain: int, executor: str = 'single',
     qos = qos_profile(problem)
     quiet = {'event_callbacks': QUIET_PUBLISHER}
     try:
-        ex = _executor(executor, context)
+        ex = make_executor(executor, context)
         ping = Node('bench_ping', context=context)
         pong = Node('bench_pong', context=context)
         msg = JointStateLayout(problem).to_msg(problem.initial_state)
@@ -135,7 +129,7 @@ def realtime_latency(problem: Problem, policy: ExemplarPolicy, domain: int,
         node.create_subscription(JointState, topics['command_stamped'],
                                  lambda m: commands.setdefault(stamp_ns(m),
                                                                time.perf_counter()), qos)
-        ex = _executor('single', context)
+        ex = make_executor('single', context)
         ex.add_node(node)
         procs = start_pair(problem, path, env, ['-p', 'mode:=realtime', '-p',
                                                 f'real_time_factor:={float(real_time_factor)}'])

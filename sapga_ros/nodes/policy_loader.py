@@ -4,8 +4,9 @@ Parsing and checking a policy document and packing it for the selector (``Prepar
 takes about 0.13 s per MB (a 60 MB file: 8 s and more): done on the executor thread it
 would leave the node deaf to states that long.  ``PolicyLoader.start`` does it in a worker
 thread; the executor thread goes on answering states with the current policy, and when the
-worker is done a guard condition hands the ``LoadResult`` to the executor thread, where the
-node swaps it in (one reference assignment) or reports why it was refused.  Only the newest
+worker is done it hands the ``LoadResult`` to the executor thread (``Executor.create_task``:
+thread-safe, and the one way to wake the EventsExecutor, which has no guard conditions), where
+the node swaps it in (one reference assignment) or reports why it was refused.  Only the newest
 request counts: a load that ends after a newer one was asked for is dropped (``supersede``
 stands for a request handled elsewhere, e.g. a small file loaded at once).
 """
@@ -61,11 +62,12 @@ class PolicyLoader:
     """Loads and prepares policies in worker threads; results come back on the executor."""
 
     def __init__(self, node: Node) -> None:
+        self._node = node
         self._logger = node.get_logger()
         self._lock = threading.Lock()
         self._latest = 0                    # number of the newest request
         self._done: list[tuple[LoadResult, Callable[[LoadResult], None]]] = []
-        self._guard = node.create_guard_condition(self._deliver)
+        self._closed = False
         self.loading: str | None = None     # source of the newest request in progress
 
     def supersede(self) -> None:
@@ -100,13 +102,18 @@ class PolicyLoader:
             error = f'{source}: {one_line(exc)}'
         with self._lock:
             self._done.append((LoadResult(number, source, prepared, error), done))
+        executor = self._node.executor
+        if executor is None:
+            return          # on no executor: delivered with the next result that has one
         try:
-            self._guard.trigger()
-        except Exception:  # noqa: BLE001 - the node was destroyed meanwhile
+            executor.create_task(self._deliver)
+        except Exception:  # noqa: BLE001 - the executor was shut down meanwhile
             pass
 
     def _deliver(self) -> None:
         with self._lock:
+            if self._closed:
+                return
             results, self._done = self._done, []
             latest = self._latest
             if any(r.number == latest for r, _ in results):
@@ -122,7 +129,8 @@ class PolicyLoader:
     def destroy(self, node: Node) -> None:
         """Results of workers still running are dropped."""
         self.supersede()
-        node.destroy_guard_condition(self._guard)
+        with self._lock:
+            self._closed = True
 
 
 async def fetch_text(node: Node, client: Client, timeout: float, group: CallbackGroup

@@ -40,7 +40,6 @@ from typing import Any
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.callback_groups import ReentrantCallbackGroup
-from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.task import Future
 from sensor_msgs.msg import JointState
@@ -61,6 +60,8 @@ from sim_nodes.ros.common import (QUIET_PUBLISHER, THROTTLE_S, JointStateLayout,
                                   run_node, stamp_ns, topic_names, topic_qos)
 from sim_nodes.ros.diagnostics import OK, WARN, NodeDiagnostics, Report
 from sim_nodes.ros.dropped import DropCounter
+from sim_nodes.ros.executors import node_executor, with_info
+from sim_nodes.ros.guarded import GuardedNode
 from sim_nodes.ros.marker_bytes import MarkerBytes
 from sim_nodes.ros.markers import PendulumMarkers
 from sim_nodes.ros.params import declare
@@ -81,7 +82,7 @@ def policy_file_size(path: str) -> int:
     return size
 
 
-class PolicyNode(Node):
+class PolicyNode(GuardedNode):
     """Answers each state with the action its policy selects."""
 
     def __init__(self, node_name: str = 'policy_node', **kwargs: Any) -> None:
@@ -122,7 +123,7 @@ class PolicyNode(Node):
         self._index_pub = self.create_publisher(Int32, topics['exemplar'], qos, **quiet)
         self._marker_pub = self.create_publisher(MarkerArray, topics['markers'], qos, **quiet)
         self._state_sub = self.create_subscription(JointState, topics['state'],
-                                                   self._on_state, qos)
+                                                   with_info(self._on_state), qos)
         self.dropped = DropCounter(self.get_logger(), self._state_sub.topic_name,
                                    self._state_sub.get_publisher_count, qos.depth)
         # The load_policy coroutine stays in progress while it awaits the trainer.  In the
@@ -190,9 +191,10 @@ class PolicyNode(Node):
         self._index_msg.data = int(j)
         self._index_pub.publish(self._index_msg)
         if self.markers:
-            ghost = self._ghosts.exemplar(prepared.policy.states[j] if j >= 0 else None, stamp)
+            ghost = self._ghosts.exemplar_bytes(prepared.policy.states[j] if j >= 0 else None,
+                                                stamp, self._ghost_bytes)
             if ghost is not None:
-                self._marker_pub.publish(self._ghost_bytes.bytes_of(ghost))
+                self._marker_pub.publish(ghost)
 
     def _report(self) -> Report:
         """The node's /diagnostics: the policy in use and the node's counters."""
@@ -318,7 +320,8 @@ class PolicyNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """``ros2 run sapga_ros policy_node``."""
-    return run_node(lambda: PolicyNode(), args, parameters=lambda: PARAMETERS, name='policy_node')
+    return run_node(lambda: PolicyNode(), args, executor=node_executor,
+                    parameters=lambda: PARAMETERS, name='policy_node')
 
 
 if __name__ == '__main__':

@@ -13,6 +13,8 @@ load_timeout      double    5.0           [s] wait for the trainer's answer at m
 markers           bool      true          publish the exemplar ghost on ``markers``
 qos_profile       string    reliable      ``reliable`` (the problem's ``ros.qos``) |
                                           ``sensor_data`` (best effort; read-only)
+executor          string    events        ``events`` (rclpy's EventsExecutor) | ``single``
+                                          (``SingleThreadedExecutor``; read-only)
 robot_joints      string[]  []            the robot's joint per problem joint ([]: same)
 joint_offsets     double[]  []            per problem joint: coordinate = offset +
 joint_directions  double[]  []            direction (1 or -1) * robot position
@@ -35,6 +37,7 @@ from typing import Any
 from sapga_ros.nodes.joint_mapping import COMMAND_OUTPUTS, VELOCITY_SOURCES
 from sim_nodes.params import Param
 from sim_nodes.ros.common import QOS_PROFILES
+from sim_nodes.ros.executors import DEFAULT_EXECUTOR, EXECUTORS
 from sim_nodes.ros.params import check
 
 PARAMETERS = (
@@ -48,6 +51,8 @@ PARAMETERS = (
     Param('markers', True, 'publish the exemplar in use as a ghost on markers'),
     Param('qos_profile', 'reliable', 'reliable (the problem ros.qos) | sensor_data (best '
           'effort)', choices=QOS_PROFILES, read_only=True),
+    Param('executor', DEFAULT_EXECUTOR, 'events: rclpy EventsExecutor (faster); single: '
+          'SingleThreadedExecutor', choices=EXECUTORS, read_only=True),
 )
 # driving a robot that is not ours (joint_mapping.py); all read-only
 MAPPING_PARAMETERS = (

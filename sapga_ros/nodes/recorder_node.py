@@ -487,8 +487,8 @@ def main(args: list[str] | None = None) -> int:
         made.append(RecorderNode())
         return made[-1]
 
-    code = run_node(make, args, executor=SingleThreadedExecutor, parameters=lambda: PARAMETERS,
-                    name='recorder_node', on_exit=_finishing,
+    code = run_node(make, args, executor=lambda node: SingleThreadedExecutor(),
+                    parameters=lambda: PARAMETERS, name='recorder_node', on_exit=_finishing,
                     signal_handler_options=SignalHandlerOptions.ALL)
     return EXIT_FAILED if code == 0 and made and made[0].failed else code
 

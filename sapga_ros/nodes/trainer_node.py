@@ -414,7 +414,7 @@ def main(args: list[str] | None = None) -> int:
     """``ros2 run sapga_ros trainer_node``."""
     return run_node(lambda: TrainerNode(), args, parameters=lambda: PARAMETERS,
                     name='trainer_node',
-                    executor=lambda: MultiThreadedExecutor(num_threads=SERVICE_THREADS))
+                    executor=lambda node: MultiThreadedExecutor(num_threads=SERVICE_THREADS))
 
 
 if __name__ == '__main__':

@@ -10,12 +10,16 @@ values at those offsets into a copy of the template: bytes that decode to the me
 ``serialize_message`` would give (only CDR padding may differ), for a few microseconds.
 ``rclpy``'s ``Publisher.publish`` takes them as they are.  An array whose sentinels cannot
 be found unambiguously is serialized the ordinary way.
+
+``patched`` is the same without a message: the drawing hands over its shape, one stamp and
+every marker's pose and point coordinates (``PendulumMarkers.state_bytes``), so no ``Point``
+message is made or read per step (building them was most of the markers' cost).
 """
 from __future__ import annotations
 
 import copy
 import struct
-from typing import Any
+from typing import Any, Callable, Sequence
 
 from rclpy.serialization import serialize_message
 
@@ -44,11 +48,7 @@ class MarkerBytes:
         """The serialized ``array``: decodes as ``serialize_message(array)`` does."""
         markers = array.markers
         shape = tuple((m.action, len(m.points)) for m in markers)
-        if shape not in self._templates:
-            if len(self._templates) >= MAX_SHAPES:
-                self._templates.clear()
-            self._templates[shape] = self._template(array)
-        template = self._templates[shape]
+        template = self._template_of(shape, lambda: array)
         if template is None:
             return serialize_message(array)
         data, offsets = template
@@ -63,6 +63,34 @@ class MarkerBytes:
                 struct.pack_into(f'<{3 * len(points)}d', buf, points_at,
                                  *[c for q in points for c in (q.x, q.y, q.z)])
         return bytes(buf)
+
+    def patched(self, shape: tuple, make: Callable[[], Any], stamp: int,
+                values: Sequence[tuple[Sequence[float], Sequence[float]]]) -> bytes:
+        """The serialized array ``make()`` would return, from its ``shape`` (each marker's
+        action and point count), the ``stamp`` [ns] of every marker and, per marker, its pose
+        position (x, y, z) and its points' coordinates (x, y, z, x, y, z, ...).  ``make`` is
+        called only for a shape not seen yet (its template) or one that has none."""
+        template = self._template_of(shape, make)
+        if template is None:
+            return serialize_message(make())
+        data, offsets = template
+        buf = bytearray(data)
+        sec, nanosec = divmod(stamp, 1_000_000_000)
+        pack_into = struct.pack_into
+        for (stamp_at, pose_at, points_at), (pose, points) in zip(offsets, values):
+            pack_into('<iI', buf, stamp_at, sec, nanosec)
+            pack_into('<3d', buf, pose_at, *pose)
+            if points_at >= 0:
+                pack_into(f'<{len(points)}d', buf, points_at, *points)
+        return bytes(buf)
+
+    def _template_of(self, shape: tuple, make: Callable[[], Any]
+                     ) -> tuple[bytes, list[tuple[int, int, int]]] | None:
+        if shape not in self._templates:
+            if len(self._templates) >= MAX_SHAPES:
+                self._templates.clear()
+            self._templates[shape] = self._template(make())
+        return self._templates[shape]
 
     @staticmethod
     def _template(array: Any) -> tuple[bytes, list[tuple[int, int, int]]] | None:

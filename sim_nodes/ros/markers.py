@@ -32,6 +32,7 @@ from sim_nodes import geometry
 from sim_nodes.geometry import Picture, Point
 from sim_nodes.problem import Problem
 from sim_nodes.ros.common import set_stamp
+from sim_nodes.ros.marker_bytes import MarkerBytes
 
 LINE_WIDTH = 0.04           # [m] links
 JOINT_SIZE = 0.08           # [m] sphere diameter
@@ -48,6 +49,14 @@ def _points(points: Sequence[Point]) -> list[PointMsg]:
 
 def _segments(pictures: Sequence[Picture]) -> list[PointMsg]:
     return _points([p for pic in pictures for seg in pic.links for p in seg])
+
+
+def _flat(points: Sequence[Point]) -> list[float]:
+    """x, y, z of each point as ``_points`` makes them, one flat list."""
+    return [c for x, z in points for c in (float(x), 0.0, float(z))]
+
+
+ORIGIN = (0.0, 0.0, 0.0)
 
 
 class PendulumMarkers:
@@ -79,8 +88,10 @@ class PendulumMarkers:
         if rail:
             self._track = self._marker('track', Marker.LINE_STRIP, TRACK_WIDTH)
             self._track.points = _points(rail)
+        self._track_flat = _flat(rail) if rail else []
         self._goal = self._pose_marker('goal')
         self._goal_delta: float | None = None
+        self._goal_flat: list[float] = []
         self._ghost = self._pose_marker('exemplar')
         self._ghost_array = MarkerArray(markers=[self._ghost])
 
@@ -98,9 +109,20 @@ class PendulumMarkers:
         return self._marker(ns, Marker.SPHERE_LIST, 1.5 * JOINT_SIZE)
 
     def _pose_points(self, pictures: Sequence[Picture]) -> list[PointMsg]:
+        return _points(self._pose_xz(pictures))
+
+    def _pose_xz(self, pictures: Sequence[Picture]) -> list[Point]:
         if self._lines:
-            return _segments(pictures)
-        return _points([p for pic in pictures for p in pic.points])
+            return [p for pic in pictures for seg in pic.links for p in seg]
+        return [p for pic in pictures for p in pic.points]
+
+    def _set_goal(self, delta: float) -> None:
+        if delta != self._goal_delta:
+            self._goal_delta = delta
+            xz = self._pose_xz([geometry.picture(self.problem, g)
+                                for g in geometry.goal_states(self.problem, delta)])
+            self._goal.points = _points(xz)
+            self._goal_flat = _flat(xz)
 
     def state(self, s: Sequence[float], stamp: int, delta: float) -> MarkerArray | None:
         """The scene of state ``s`` stamped ``stamp`` [ns], the goal band at ``delta``; None
@@ -108,11 +130,7 @@ class PendulumMarkers:
         if not self.enabled:
             return None
         pic = geometry.picture(self.problem, s)
-        if delta != self._goal_delta:
-            self._goal_delta = delta
-            self._goal.points = self._pose_points(
-                [geometry.picture(self.problem, g) for g in geometry.goal_states(self.problem,
-                                                                                 delta)])
+        self._set_goal(delta)
         if self._links is not None:
             self._links.points = _segments([pic])
         if self._joints is not None:
@@ -124,6 +142,36 @@ class PendulumMarkers:
         for m in markers:
             set_stamp(m.header, stamp)
         return MarkerArray(markers=markers)
+
+    def state_bytes(self, s: Sequence[float], stamp: int, delta: float,
+                    packer: MarkerBytes) -> bytes | None:
+        """``packer.bytes_of(self.state(s, stamp, delta))``, made without messages."""
+        if not self.enabled:
+            return None
+        pic = geometry.picture(self.problem, s)
+        self._set_goal(delta)
+        values = []
+        if self._links is not None:
+            values.append((ORIGIN, _flat([p for seg in pic.links for p in seg])))
+        if self._joints is not None:
+            values.append((ORIGIN, _flat(pic.joints)))
+        if self._body is not None:
+            values.append(((float(pic.body[0]), 0.0, float(pic.body[1])), ()))
+        if self._track is not None:
+            values.append((ORIGIN, self._track_flat))
+        values.append((ORIGIN, self._goal_flat))
+        shape = tuple((Marker.ADD, len(points) // 3) for _, points in values)
+        return packer.patched(shape, lambda: self.state(s, stamp, delta), stamp, values)
+
+    def exemplar_bytes(self, s: Sequence[float] | None, stamp: int,
+                       packer: MarkerBytes) -> bytes | None:
+        """``packer.bytes_of(self.exemplar(s, stamp))``, made without messages."""
+        if not self.enabled:
+            return None
+        points = [] if s is None else _flat(self._pose_xz([geometry.picture(self.problem, s)]))
+        shape = ((Marker.DELETE, 0),) if s is None else ((Marker.ADD, len(points) // 3),)
+        return packer.patched(shape, lambda: self.exemplar(s, stamp), stamp,
+                              [(ORIGIN, points)])
 
     def exemplar(self, s: Sequence[float] | None, stamp: int) -> MarkerArray | None:
         """The ghost of the exemplar state ``s`` stamped ``stamp`` [ns] (``s`` None: delete

@@ -37,36 +37,36 @@ from rclpy.node import Node
 from sim_nodes.errors import ConfigError, SapgaError
 from sim_nodes.files import load_yaml, read_bounded
 from sim_nodes.params import Param, check_mapping, usage_lines
+from sim_nodes.ros.guarded import NodeExit, log_failure, one_line, take_exit  # noqa: F401
 
 EXIT_FAILED = 1                        # a callback stopped the node
 EXIT_USAGE = 2                         # a user error before the node ran
 MAX_PARAMS_BYTES = 16 * 1024 * 1024    # a --params-file larger than this is refused
 HELP = ('-h', '--help')
+# spin_guarded looks at the context this often at least: rclpy's signal handler shuts the
+# context down without waking an EventsExecutor that waits for its next event
+WAKE_S = 0.25
 PACKAGE = 'sapga_ros'
-
-
-class NodeExit(SapgaError):
-    """Raised by a callback that must stop its node: one line on stderr, exit code 1."""
-
-
-def one_line(exc: BaseException, limit: int = 300) -> str:
-    """``Type: message`` of an exception on one line, at most ``limit`` characters."""
-    text = ' '.join(str(exc).split())
-    return f'{type(exc).__name__}: {text}'[:limit]
 
 
 def spin_guarded(executor: Executor, logger: Any) -> None:
     """Spin ``executor`` until its context shuts down; a callback that raises is logged as
-    one line and the executor goes on.  ``NodeExit``, Ctrl-C and external shutdown end it."""
+    one line and the executor goes on.  ``NodeExit`` (raised, or requested by a guarded
+    callback: ``guarded.py``) and Ctrl-C are raised; a shutdown of the context returns."""
     while executor.context.ok():
         try:
-            executor.spin_once()
-        except (NodeExit, KeyboardInterrupt, ExternalShutdownException):
+            executor.spin_once(timeout_sec=WAKE_S)
+        except ExternalShutdownException:
+            return                  # the EventsExecutor's word for a context shut down
+        except (NodeExit, KeyboardInterrupt):
             raise
         except Exception as exc:  # noqa: BLE001 - no callback may end the node
             if not executor.context.ok():
                 return
-            logger.error(f'callback failed, going on: {one_line(exc)}')
+            log_failure(logger, exc)
+        exit_request = take_exit(executor)
+        if exit_request is not None:
+            raise exit_request
 
 
 # arguments ------------------------------------------------------------------------------------
@@ -189,11 +189,12 @@ def _summary(module: Any) -> str:
 # run ------------------------------------------------------------------------------------------
 
 def run_node(make_node: Callable[[], Node], args: list[str] | None = None,
-             executor: Callable[[], Executor] | None = None,
+             executor: Callable[[Node], Executor] | None = None,
              parameters: Callable[[], Sequence[Param]] = tuple, name: str | None = None,
              on_exit: Callable[[], None] | None = None, **init_kwargs: Any) -> int:
     """Run one node the standard way and return the process exit code (module docstring).
 
+    ``executor(node)``: the executor to spin the node on (None: rclpy's global one);
     ``parameters()``: the node's parameter declarations (``--help``, params files);
     ``name``: the executable (default: ``argv[0]``'s);
     ``on_exit``: called before the node is destroyed; ``init_kwargs`` go to ``rclpy.init``.
@@ -210,7 +211,7 @@ def run_node(make_node: Callable[[], Node], args: list[str] | None = None,
     try:
         init_ros(args, parameters(), **init_kwargs)
         node = make_node()
-        ex = executor() if executor is not None else rclpy.get_global_executor()
+        ex = executor(node) if executor is not None else rclpy.get_global_executor()
         ex.add_node(node)
         spin_guarded(ex, node.get_logger())
     except (KeyboardInterrupt, ExternalShutdownException):

@@ -41,7 +41,6 @@ from typing import Any, Callable
 
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
-from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
@@ -61,6 +60,8 @@ from sim_nodes.ros.common import (CLOCK_QOS, EVENT_QOS, QUIET_PUBLISHER, JointSt
                                   MessageError, run_node, steady_clock, topic_names, topic_qos)
 from sim_nodes.ros.diagnostics import OK, WARN, NodeDiagnostics, Report
 from sim_nodes.ros.dropped import DropCounter
+from sim_nodes.ros.executors import node_executor, with_info
+from sim_nodes.ros.guarded import GuardedNode
 from sim_nodes.ros.marker_bytes import MarkerBytes
 from sim_nodes.ros.markers import PendulumMarkers
 from sim_nodes.ros.mujoco_engine import MujocoEngine
@@ -79,7 +80,7 @@ def _json_number(x: float) -> float | None:
     return x if math.isfinite(x) else None
 
 
-class SimNode(Node):
+class SimNode(GuardedNode):
     """Simulates one problem; publishes its state, reward, markers and episode events."""
 
     def __init__(self, default_problem: str = 'acrobot', node_name: str = 'sim',
@@ -118,13 +119,13 @@ class SimNode(Node):
         self._event_pub = self.create_publisher(String, topics['event'], EVENT_QOS, **quiet)
         self._clock_pub = None         # only while publish_clock is true (_configure_clock)
         self._command_sub = self.create_subscription(Float64, topics['command'],
-                                                     self._on_command, qos)
+                                                     with_info(self._on_command), qos)
         self._stamped_sub = self.create_subscription(JointState, topics['command_stamped'],
-                                                     self._on_stamped_command, qos)
+                                                     with_info(self._on_stamped_command), qos)
         subs = [self._command_sub, self._stamped_sub]
         if self._robot is not None:
             self._effort_sub = self.create_subscription(
-                Float64MultiArray, engine['effort_topic'], self._on_effort, qos)
+                Float64MultiArray, engine['effort_topic'], with_info(self._on_effort), qos)
             subs.append(self._effort_sub)
         self.dropped = {sub.topic_name: DropCounter(self.get_logger(), sub.topic_name,
                                                     sub.get_publisher_count, qos.depth)
@@ -139,7 +140,7 @@ class SimNode(Node):
         self._state_msg = self._layout.new_msg()
         self._reward_msg = Float64()
         self._clock_msg = Clock()
-        self._marker_msg: MarkerArray | None = None
+        self._marker_data: bytes | None = None   # the markers of the state last published
         self._tick = -1                # sim time of the last published state, in ticks
         self._episode = 0              # episodes started
         self._step = 0                 # MDP steps in this episode
@@ -279,8 +280,8 @@ class SimNode(Node):
     def _on_republish(self) -> None:
         if self._tick >= 0:             # a state was published (the recorder gate is open)
             self._state_pub.publish(self._state_msg)
-            if self._marker_msg is not None:
-                self._marker_pub.publish(self._marker_msg)
+            if self._marker_data is not None:
+                self._marker_pub.publish(self._marker_data)
 
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response
                   ) -> Trigger.Response:
@@ -299,7 +300,7 @@ class SimNode(Node):
         s = self._s0.copy()
         self._mdp_step(s, 0.0, self._plant.params)
         goal_delta(s, self._best, self._inv_scale, self._fixed, self._is_angle)
-        self._markers.state(s, 0, self.settings.delta)
+        self._markers.state_bytes(s, 0, self.settings.delta, self._marker_bytes)
         self._layout.fill(self._layout.new_msg(), s, 0.0, 0)
 
     def _first_episode(self) -> None:
@@ -418,9 +419,10 @@ class SimNode(Node):
         self._layout.fill(self._state_msg, self._seen, self._effort, ns)
         self._state_pub.publish(self._state_msg)
         s = self.settings
-        self._marker_msg = self._markers.state(self._s, ns, s.delta) if s.markers else None
-        if self._marker_msg is not None:
-            self._marker_pub.publish(self._marker_bytes.bytes_of(self._marker_msg))
+        self._marker_data = self._markers.state_bytes(self._s, ns, s.delta,
+                                                      self._marker_bytes) if s.markers else None
+        if self._marker_data is not None:
+            self._marker_pub.publish(self._marker_data)
         if self._clock_pub is not None:
             self._clock_msg.clock = self._state_msg.header.stamp
             self._clock_pub.publish(self._clock_msg)
@@ -441,7 +443,8 @@ def main(args: list[str] | None = None, problem: str = 'acrobot',
     """``ros2 run sapga_ros sim_node``: a simulator node of any problem (``problem`` is the
     default of the ``problem`` parameter)."""
     return run_node(lambda: SimNode(default_problem=problem, node_name=node_name), args,
-                    parameters=lambda: sim_parameters(problem), name=node_name)
+                    executor=node_executor, parameters=lambda: sim_parameters(problem),
+                    name=node_name)
 
 
 def model_main(model: str) -> Callable[[list[str] | None], int]:

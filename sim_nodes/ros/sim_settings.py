@@ -12,7 +12,8 @@ step per tick of wall time / ``real_time_factor``, zero-order hold on the latest
 ``auto_reset``, ``max_episodes`` (the reset service still starts episodes beyond it),
 ``republish_period`` (lockstep: the waiting state again, same stamp), ``publish_clock``
 (false for all but one of several simulators in one domain), ``markers``, ``qos_profile``
-(read-only; ``sensor_data``: best effort, depth 5, for realtime runs), ``wait_for_policy``
+(read-only; ``sensor_data``: best effort, depth 5, for realtime runs), ``executor``
+(read-only; ``executors.py``), ``wait_for_policy``
 and ``policy_timeout`` (realtime: the first tick waits for a command answering the first
 state, which is re-published meanwhile; exit 1 after the timeout), ``disturbance`` and
 ``disturbance_seed`` (read-only; the plant is disturbed as the episode engine disturbs it,
@@ -30,6 +31,7 @@ from rclpy.node import Node
 from sim_nodes.params import DELTA, N_STEP, Param
 from sim_nodes.problem import Problem
 from sim_nodes.ros.common import QOS_PROFILES
+from sim_nodes.ros.executors import DEFAULT_EXECUTOR, EXECUTORS
 from sim_nodes.ros.mujoco_engine import EFFORT_TOPIC, ENGINES
 from sim_nodes.ros.params import check, declare
 from sim_nodes.ros.recorder_gate import gate_parameters
@@ -73,6 +75,8 @@ def sim_parameters(default_problem: str) -> list[Param]:
         Param('markers', True, 'publish the pendulum as visualization_msgs/MarkerArray'),
         Param('qos_profile', 'reliable', 'reliable (the problem ros.qos) | sensor_data (best '
               'effort)', choices=QOS_PROFILES, read_only=True),
+        Param('executor', DEFAULT_EXECUTOR, 'events: rclpy EventsExecutor (faster); single: '
+              'SingleThreadedExecutor', choices=EXECUTORS, read_only=True),
         Param('wait_for_policy', True, 'realtime: step only once a command answered the first '
               'state (re-published meanwhile); false: step at once', read_only=True),
         Param('policy_timeout', 60.0, 'how long realtime waits for that answer (longer: the '
