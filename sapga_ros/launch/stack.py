@@ -68,7 +68,7 @@ class DeployStack:
                        for role, name in self.ros.node.topics.items()}
         recorder = {'problem': o.problem.name, 'output_dir': str(o.out),
                     'bag': self.bag.name, 'delta': float(o.delta)}
-        policy: dict[str, Any] = {'problem': o.problem.name}
+        policy: dict[str, Any] = {'problem': o.problem.name, **self._loop_executor()}
         if o.engine == 'mujoco':
             self.topics['effort'] = self.ros.node.resolve_topic_name(EFFORT_TOPIC)
             recorder['topics'] = [*self.ros.node.topics.values(),
@@ -88,7 +88,14 @@ class DeployStack:
             'auto_reset': True, 'max_episodes': o.episodes, 'republish_period': 0.0,
             'real_time_factor': float(o.real_time_factor), 'wait_for_recorder': RECORDER,
             'recorder_timeout': CONNECT_TIMEOUT_S, 'engine': o.engine,
-            'n_step': o.problem.resolve('n_step', o.n_step)})
+            'n_step': o.problem.resolve('n_step', o.n_step), **self._loop_executor()})
+
+    def _loop_executor(self) -> dict[str, str]:
+        """A recorded lockstep loop runs its two nodes on the single-threaded executor: on
+        the EventsExecutor it is about three times as fast and, on a busy machine, outpaces
+        the recorder, which then loses messages (``--ros-args -p executor:=events`` still
+        chooses it).  Realtime runs keep the nodes' default."""
+        return {'executor': 'single'} if self.opts.mode == 'lockstep' else {}
 
     def spawn(self, name: str, exe: str, params: dict[str, Any]) -> None:
         """Start package executable ``exe`` as child ``name`` with ``params``."""

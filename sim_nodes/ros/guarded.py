@@ -5,9 +5,12 @@ subscription and service callback made with its ``create_*`` methods:
 
 * an exception is logged as one line (``callback failed, going on: Type: message``) and the
   node goes on; a failing service answers its default response (``message`` says why, where
-  the response has one) instead of none;
-* ``NodeExit`` (a callback that must stop the node) is handed to ``spin_guarded``
-  (``request_exit``), which raises it once the callback has returned: one line, exit 1.
+  the response has one) instead of none; once the context is shut down (Ctrl-C, SIGTERM: a
+  publish then fails) nothing is logged;
+* ``NodeExit`` (a callback that must stop the node) and ``KeyboardInterrupt`` (Ctrl-C while
+  a callback runs) are raised as they are on rclpy's own executors; on the
+  ``EventsExecutor`` they are handed to ``spin_guarded`` (``request_exit``), which raises
+  them once the callback has returned (a node spun otherwise on it does not stop).
 
 Without the guard an exception would reach the executor: the ``SingleThreadedExecutor``
 raises it from ``spin_once`` (``spin_guarded`` logs it as one line), but rclpy's
@@ -27,6 +30,7 @@ import inspect
 import weakref
 from typing import Any, Callable
 
+from rclpy.executors import Executor
 from rclpy.node import Node
 
 from sim_nodes.errors import SapgaError
@@ -42,15 +46,22 @@ def one_line(exc: BaseException, limit: int = 300) -> str:
     return f'{type(exc).__name__}: {text}'[:limit]
 
 
-_EXITS: 'weakref.WeakKeyDictionary[Any, NodeExit]' = weakref.WeakKeyDictionary()
+_EXITS: 'weakref.WeakKeyDictionary[Any, BaseException]' = weakref.WeakKeyDictionary()
 
 
-def request_exit(node: Any, exc: NodeExit) -> None:
-    """Stop ``node``'s spin with ``exc`` once the running callback returns."""
+def request_exit(node: Any, exc: BaseException) -> None:
+    """Stop ``node``'s spin (``spin_guarded``) with ``exc`` once the running callback
+    returns."""
     _EXITS[node] = exc
 
 
-def take_exit(executor: Any) -> NodeExit | None:
+def on_events_executor(node: Any) -> bool:
+    """Whether ``node`` is spun by the EventsExecutor (which is no rclpy ``Executor``)."""
+    executor = node.executor
+    return executor is not None and not isinstance(executor, Executor)
+
+
+def take_exit(executor: Any) -> BaseException | None:
     """The exit a node of ``executor`` requested, if any (taken: asked once)."""
     if not _EXITS:
         return None
@@ -69,10 +80,12 @@ def guard(node: Any, callback: Callable[..., Any], fallback: Callable[..., Any] 
           ) -> Callable[..., Any]:
     """``callback`` with its exceptions handled as the module says; ``fallback(*args, exc)``
     gives the result of a call that failed (default None)."""
-    def failed(args: tuple, exc: Exception) -> Any:
-        if isinstance(exc, NodeExit):
+    def failed(args: tuple, exc: BaseException) -> Any:
+        if isinstance(exc, (NodeExit, KeyboardInterrupt)):
+            if not on_events_executor(node):
+                raise exc
             request_exit(node, exc)
-        else:
+        elif node.context.ok():
             log_failure(node.get_logger(), exc)
         return None if fallback is None else fallback(*args, exc)
 
@@ -81,7 +94,7 @@ def guard(node: Any, callback: Callable[..., Any], fallback: Callable[..., Any] 
         async def guarded_async(*args: Any) -> Any:
             try:
                 return await callback(*args)
-            except Exception as exc:  # noqa: BLE001 - see the module docstring
+            except (Exception, KeyboardInterrupt) as exc:  # noqa: BLE001 - see the module
                 return failed(args, exc)
         return guarded_async
 
@@ -89,12 +102,12 @@ def guard(node: Any, callback: Callable[..., Any], fallback: Callable[..., Any] 
     def guarded(*args: Any) -> Any:
         try:
             return callback(*args)
-        except Exception as exc:  # noqa: BLE001 - see the module docstring
+        except (Exception, KeyboardInterrupt) as exc:  # noqa: BLE001 - see the module
             return failed(args, exc)
     return guarded
 
 
-def _failed_response(request: Any, response: Any, exc: Exception) -> Any:
+def _failed_response(request: Any, response: Any, exc: BaseException) -> Any:
     if hasattr(response, 'message'):
         response.message = f'failed: {one_line(exc)}'
     return response

@@ -33,6 +33,7 @@ import yaml
 from rclpy.exceptions import ParameterException
 from rclpy.executors import Executor, ExternalShutdownException
 from rclpy.node import Node
+from rclpy.task import Future
 
 from sim_nodes.errors import ConfigError, SapgaError
 from sim_nodes.files import load_yaml, read_bounded
@@ -43,8 +44,8 @@ EXIT_FAILED = 1                        # a callback stopped the node
 EXIT_USAGE = 2                         # a user error before the node ran
 MAX_PARAMS_BYTES = 16 * 1024 * 1024    # a --params-file larger than this is refused
 HELP = ('-h', '--help')
-# spin_guarded looks at the context this often at least: rclpy's signal handler shuts the
-# context down without waking an EventsExecutor that waits for its next event
+# spin_guarded looks at the context (and a guarded callback's exit request) this often at
+# least: rclpy's signal handler shuts the context down without waking an EventsExecutor
 WAKE_S = 0.25
 PACKAGE = 'sapga_ros'
 
@@ -53,9 +54,16 @@ def spin_guarded(executor: Executor, logger: Any) -> None:
     """Spin ``executor`` until its context shuts down; a callback that raises is logged as
     one line and the executor goes on.  ``NodeExit`` (raised, or requested by a guarded
     callback: ``guarded.py``) and Ctrl-C are raised; a shutdown of the context returns."""
+    # The EventsExecutor runs every spin_once's blocked tasks at once (a coroutine waiting for
+    # a future would keep a core busy): it spins in windows of WAKE_S instead.
+    events = not isinstance(executor, Executor)
+    never = Future()
     while executor.context.ok():
         try:
-            executor.spin_once(timeout_sec=WAKE_S)
+            if events:
+                executor.spin_until_future_complete(never, timeout_sec=WAKE_S)
+            else:
+                executor.spin_once(timeout_sec=WAKE_S)
         except ExternalShutdownException:
             return                  # the EventsExecutor's word for a context shut down
         except (NodeExit, KeyboardInterrupt):
