@@ -27,6 +27,7 @@ from sapga_ros.errors import SapgaError
 from sapga_ros.evaluation.state_selector import StateSelector
 from sapga_ros.policies.exemplar import ExemplarPolicy
 from sim_nodes.ros.common import one_line, steady_clock
+from sim_nodes.ros.guarded import guard
 
 POLL_S = 0.02  # [s] how often a pending fetch checks for the service and its deadline
 
@@ -105,8 +106,8 @@ class PolicyLoader:
         executor = self._node.executor
         if executor is None:
             return          # on no executor: delivered with the next result that has one
-        try:
-            executor.create_task(self._deliver)
+        try:    # guarded as the node's callbacks are (a failure: one line, node goes on)
+            executor.create_task(guard(self._node, self._deliver))
         except Exception:  # noqa: BLE001 - the executor was shut down meanwhile
             pass
 
