@@ -3,11 +3,12 @@
 ``events`` (the default for the simulator and the policy node): rclpy's
 ``rclpy.experimental.EventsExecutor``, which reacts to each ready entity instead of
 rebuilding a wait set of every entity of the process for every callback; the lockstep loop
-runs about 2.4 times as fast on it (``sapga bench --ros``).  ``single``: rclpy's
+runs about three times as fast on it (``sapga bench --ros``).  ``single``: rclpy's
 ``SingleThreadedExecutor``.  A node's read-only ``executor`` parameter chooses
 (``--ros-args -p executor:=single``).
 
-Two things the EventsExecutor of Jazzy's rclpy does differently, and how the nodes cope:
+Two things the EventsExecutor of Jazzy's rclpy does differently, handled here (the others,
+its coroutine services, callback exceptions and signals: ``guarded.py``, ``runner.py``):
 
 * a subscription callback that takes the message info is called with one argument, the
   pair (message, info), where the other executors pass two; ``with_info(fn)`` makes a

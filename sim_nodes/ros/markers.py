@@ -47,8 +47,13 @@ def _points(points: Sequence[Point]) -> list[PointMsg]:
     return [PointMsg(x=float(x), y=0.0, z=float(z)) for x, z in points]
 
 
+def _link_points(pictures: Sequence[Picture]) -> list[Point]:
+    """Both ends of every link of ``pictures``, in order (a LINE_LIST's points)."""
+    return [p for pic in pictures for seg in pic.links for p in seg]
+
+
 def _segments(pictures: Sequence[Picture]) -> list[PointMsg]:
-    return _points([p for pic in pictures for seg in pic.links for p in seg])
+    return _points(_link_points(pictures))
 
 
 def _flat(points: Sequence[Point]) -> list[float]:
@@ -113,7 +118,7 @@ class PendulumMarkers:
 
     def _pose_xz(self, pictures: Sequence[Picture]) -> list[Point]:
         if self._lines:
-            return [p for pic in pictures for seg in pic.links for p in seg]
+            return _link_points(pictures)
         return [p for pic in pictures for p in pic.points]
 
     def _set_goal(self, delta: float) -> None:
@@ -152,7 +157,7 @@ class PendulumMarkers:
         self._set_goal(delta)
         values = []
         if self._links is not None:
-            values.append((ORIGIN, _flat([p for seg in pic.links for p in seg])))
+            values.append((ORIGIN, _flat(_link_points([pic]))))
         if self._joints is not None:
             values.append((ORIGIN, _flat(pic.joints)))
         if self._body is not None:
