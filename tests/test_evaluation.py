@@ -9,7 +9,9 @@ import numpy as np
 import pytest
 
 from sapga_ros.evaluation.evaluator import Evaluator, set_jobs
+from sapga_ros.optim.operators import random_exemplars
 from sapga_ros.policies.exemplar import ExemplarPolicy
+from sapga_ros.policies.styles import STYLES
 from sim_nodes import reference
 from sim_nodes.goal import delta_of
 from sim_nodes.models import model_module
@@ -190,6 +192,27 @@ def test_single_policy_batches_equal_the_whole_batch(population):
         alone = evaluator.evaluate([policies[k]])
         assert (alone.returns[0], alone.steps[0], alone.delta_star[0]) == (
             result.returns[k], result.steps[k], result.delta_star[k])
+
+
+@pytest.mark.parametrize('style', list(STYLES))
+def test_a_packed_batch_holds_each_policy_as_packed_alone(problem, style):
+    """The batch's padded arrays hold, in policy k's slots, exactly what packing policy k
+    alone gives (normalised states and second states, action values, values) and zeros
+    after its length: packing many at once is the same arithmetic per exemplar."""
+    rng = np.random.default_rng(5)
+    policies = [random_exemplars(problem, int(n), rng, style) for n in rng.integers(1, 40, 30)]
+    policies[4].states[0, 0] = np.nan
+    evaluator = Evaluator(problem)
+    number, ex, ex2, act, val, lengths = evaluator.pack(policies)
+    assert lengths.tolist() == [len(p) for p in policies]
+    for k, p in enumerate(policies):
+        alone = evaluator.pack([p])
+        n = len(p)
+        assert alone[0] == number
+        assert ex[k, :, :n].tobytes() == alone[1][0].tobytes() and not ex[k, :, n:].any()
+        assert ex2[k, :, :alone[2].shape[2]].tobytes() == alone[2][0].tobytes()
+        assert act[k, :n].tobytes() == alone[3][0].tobytes() and not act[k, n:].any()
+        assert val[k, :n].tobytes() == alone[4][0].tobytes() and not val[k, n:].any()
 
 
 def test_empty_batch_gives_empty_results(problem):

@@ -136,3 +136,48 @@ def test_progress_callbacks_report_each_generation_and_improvements():
     assert values[-1] == result.policy.meta['value']
     json.dumps(result.policy.to_document())  # meta is JSON-serialisable
     assert math.isfinite(result.policy.meta['value'])
+
+
+@pytest.mark.parametrize('variant', ['paper', 'child-ties', 'dstar', 'dstar-child'])
+def test_tell_takes_a_generation_as_taking_its_members_one_by_one(variant):
+    """``tell`` takes the whole generation's results at once; the run's best, best value,
+    delta*, steps and evaluation count are what taking the members one at a time in order
+    gives, with NaN and infinite returns ranked worst, NaN delta* never lowering the run's,
+    and ties going to the first member."""
+    problem = load_problem('acrobot')
+    rng = np.random.default_rng(7)
+    for trial in range(12):
+        ga = SapGA.create(problem, SapgaParams(n_pop=10, n_child=3, l_min=2, l_max=4,
+                                               variant=variant), seed=trial)
+        for generation in range(3):
+            batch = ga.ask()
+            n = len(batch)
+            returns = rng.choice([-3.0, -2.0, -1.0, math.nan, math.inf, -math.inf], n)
+            dstar = rng.choice([0.1, 0.2, 0.3, math.nan, math.inf], n)
+            steps = rng.integers(0, 500, n)
+            reached = rng.random(n) < 0.5
+            used = [np.ones(len(p), dtype=np.bool_) for p in batch]
+            before = (ga.best, ga.stats.best_value, ga.stats.delta_star, ga.stats.steps,
+                      ga.stats.evaluations)
+            pending = list(ga._pending)
+            best, best_value, run_dstar, total, count = before
+            best_key = ga._rank(best) if best is not None else None
+            for m, value, d in zip(pending, returns.tolist(), dstar.tolist()):
+                value = value if math.isfinite(value) else -math.inf
+                key = ((-d if not math.isnan(d) else -math.inf, value)
+                       if variant.startswith('dstar') else value)
+                if best is None or key > best_key:
+                    best, best_key = m, key
+                run_dstar = min(run_dstar, d)
+                best_value = max(best_value, value)
+            ga.tell(returns, dstar, steps, reached, used)
+            assert ga.best is best
+            assert ga.stats.best_value == best_value
+            assert ga.stats.delta_star == run_dstar or (
+                math.isnan(ga.stats.delta_star) and math.isnan(run_dstar))
+            assert ga.stats.steps == total + int(steps.sum())
+            assert ga.stats.evaluations == count + n
+            for m, value, d, k in zip(pending, returns.tolist(), dstar.tolist(), steps):
+                assert m.value == (value if math.isfinite(value) else -math.inf)
+                assert m.delta_star == d or (math.isnan(d) and math.isnan(m.delta_star))
+                assert m.steps == k and type(m.steps) is int

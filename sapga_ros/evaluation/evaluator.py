@@ -18,7 +18,7 @@ import numpy as np
 
 from sapga_ros.errors import SapgaError
 from sapga_ros.evaluation.engine import BLOCKS_PER_THREAD, evaluate_batch, run_share
-from sapga_ros.exemplars.distance import normalize_states
+from sapga_ros.exemplars.distance import normalize_padded_into, normalize_states, pad_into
 from sapga_ros.policies.episode import Episode
 from sapga_ros.policies.exemplar import ExemplarPolicy
 from sapga_ros.policies.styles import STYLES
@@ -107,21 +107,26 @@ class Evaluator:
         if len(styles) > 1:
             raise SapgaError(f'one batch holds one exemplar style, got {sorted(styles)}')
         style = STYLES[styles.pop() if styles else 'state-action']
-        lengths = np.array([len(p) for p in policies], dtype=np.int64)
-        lmax = int(lengths.max()) if len(policies) else 1
-        dim = self.problem.dim
-        ex = np.zeros((len(policies), dim, lmax))
-        ex2 = np.zeros((len(policies), dim, lmax if style.uses('state2') else 1))
-        act = np.zeros((len(policies), lmax))
-        val = np.zeros((len(policies), lmax))
-        values = self.actions
-        for k, p in enumerate(policies):
-            n = len(p)
-            normalize_states(p.states, self.ranges, self.is_angle, ex[k, :, :n])
-            if style.uses('state2'):
-                normalize_states(p.states2, self.ranges, self.is_angle, ex2[k, :, :n])
-            act[k, :n] = values[p.actions]
-            val[k, :n] = p.values
+        count, dim = len(policies), self.problem.dim
+        lengths = np.fromiter((len(p.states) for p in policies), dtype=np.int64, count=count)
+        lmax = int(lengths.max()) if count else 1
+        ex = np.zeros((count, dim, lmax))
+        ex2 = np.zeros((count, dim, lmax if style.uses('state2') else 1))
+        act = np.zeros((count, lmax))
+        val = np.zeros((count, lmax))
+        if count == 0:
+            return style.number, ex, ex2, act, val, lengths
+        # Every policy's exemplars side by side, normalised into their padded slots in one
+        # compiled call: the same ``normalize_into`` per row as each policy alone.
+        inv = 1.0 / self.ranges
+        normalize_padded_into(np.concatenate([p.states for p in policies]), lengths, inv,
+                              self.is_angle, ex)
+        if style.uses('state2'):
+            normalize_padded_into(np.concatenate([p.states2 for p in policies]), lengths,
+                                  inv, self.is_angle, ex2)
+        pad_into(self.actions[np.concatenate([p.actions for p in policies])], lengths, act)
+        values = np.concatenate([p.values for p in policies]).astype(np.float64, copy=False)
+        pad_into(values, lengths, val)
         return style.number, ex, ex2, act, val, lengths
 
     def evaluate(self, policies: list[ExemplarPolicy],

@@ -131,6 +131,27 @@ def normalize_rows_into(states, inv_range, is_angle, out):
         normalize_into(states[j], inv_range, is_angle, out[:, j])
 
 
+@kernel
+def normalize_padded_into(states, lengths, inv_range, is_angle, out):
+    """Policies' exemplar rows side by side (``lengths[k]`` rows each) -> out[k, :, j] =
+    ``normalize_into`` of policy k's row j (a padded batch, in one compiled call)."""
+    start = 0
+    for k in range(lengths.shape[0]):
+        for j in range(lengths[k]):
+            normalize_into(states[start + j], inv_range, is_angle, out[k, :, j])
+        start += lengths[k]
+
+
+@kernel
+def pad_into(flat, lengths, out):
+    """Policies' per-exemplar values side by side -> out[k, j] = policy k's value j."""
+    start = 0
+    for k in range(lengths.shape[0]):
+        for j in range(lengths[k]):
+            out[k, j] = flat[start + j]
+        start += lengths[k]
+
+
 def normalize_states(states: np.ndarray, ranges: np.ndarray, is_angle: np.ndarray,
                      out: np.ndarray | None = None) -> np.ndarray:
     """(L, D) raw exemplar states -> (D, L) normalised, as ``nearest`` takes them (into

@@ -194,22 +194,27 @@ class SapGA(Optimizer):
                 == len(self._pending):
             raise RuntimeError('tell() needs the results of the last ask(), in order')
         st = self.stats
+        values = np.asarray(returns, dtype=float)
+        values = np.where(np.isfinite(values), values, -math.inf)    # NaN ranks worst
+        dstar = np.asarray(delta_star, dtype=float)
+        steps = np.asarray(steps).astype(np.int64, copy=False)
+        for m, value, d, n, hit, marks in zip(self._pending, values.tolist(), dstar.tolist(),
+                                              steps.tolist(), np.asarray(reached).tolist(),
+                                              used):
+            m.value, m.delta_star, m.steps, m.reached, m.used = value, d, n, bool(hit), marks
+        if len(values):
+            # As taking the members one by one: NaN delta* never lowers the run's, and the
+            # best is the first member of highest rank, if it ranks above the best so far.
+            st.steps += int(steps.sum())
+            st.evaluations += len(values)
+            seen = dstar[~np.isnan(dstar)]
+            if len(seen):
+                st.delta_star = min(st.delta_star, float(seen.min()))
+            st.best_value = max(st.best_value, float(values.max()))
+            first = self._pending[self._first_best(values, dstar)]
+            if self.best is None or self._rank(first) > self._rank(self.best):
+                self.best = first
         rank = self._rank
-        columns = zip(self._pending, np.asarray(returns, dtype=float).tolist(),
-                      np.asarray(delta_star, dtype=float).tolist(),
-                      np.asarray(steps).tolist(), np.asarray(reached).tolist(), used)
-        for m, value, d, n, hit, marks in columns:
-            m.value = value if math.isfinite(value) else -math.inf  # NaN ranks worst
-            m.delta_star = d
-            m.steps = int(n)
-            m.reached = bool(hit)
-            m.used = marks
-            st.steps += m.steps
-            st.evaluations += 1
-            st.delta_star = min(st.delta_star, m.delta_star)
-            st.best_value = max(st.best_value, m.value)
-            if self.best is None or rank(m) > rank(self.best):
-                self.best = m
         stars = []
         for i, j, members in self._families:
             if self.params.variant in ('child-ties', 'dstar-child'):
@@ -227,6 +232,14 @@ class SapGA(Optimizer):
             self.population[j] = twin
         st.generation += 1
         self._families = self._pending = None
+
+    def _first_best(self, values: np.ndarray, dstar: np.ndarray) -> int:
+        """Index of the first entry of highest ``_rank`` (values already NaN-free)."""
+        if self.params.variant in ('dstar', 'dstar-child'):
+            near = np.where(np.isnan(dstar), -math.inf, -dstar)
+            ties = np.flatnonzero(near == near.max())
+            return int(ties[np.argmax(values[ties])])
+        return int(np.argmax(values))
 
     def _rank(self, m: Individual):
         """What selection maximises: the value (paper), or nearness to the goal first."""
