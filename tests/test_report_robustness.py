@@ -31,6 +31,9 @@ def test_report_has_the_hold_table_and_figures_of_the_runs(hold_dir):
         holding = sum(f['hold_fraction'] >= 0.95 for f in finals)
         row = next(line for line in report.split('\n') if line.startswith(f'| {e} | acrobot'))
         assert f'| {holding}/2 |' in row, row
+        values = [f['policy_value'] for f in finals]
+        mean, std = sum(values) / 2, abs(values[0] - values[1]) / 2
+        assert row.endswith(f'| {mean:.1f} ± {std:.1f} |'), row
     assert '## Hold' in report and '| 5 | acrobot_hold | classical | 1.000 ± 0.000 |' in report
     for name in ('hold_fraction.png', 'hold_episodes.png'):
         assert f']({name})' in report and (out / name).stat().st_size > 5000

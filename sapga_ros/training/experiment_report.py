@@ -170,6 +170,13 @@ def hold_summary(finals: list[dict]) -> dict:
             'rail_contacts_mean': float(np.mean([f['rail_contacts'] for f in finals]))}
 
 
+def _value_text(final: dict) -> str:
+    """The returned policies' value, mean ± std ('n/a' for runs that predate it)."""
+    if final.get('policy_value_mean') is None:
+        return 'n/a'
+    return f"{final['policy_value_mean']:.1f} ± {final['policy_value_std']:.1f}"
+
+
 def markdown_table(summaries: list[dict]) -> str:
     """The final measures of each experiment as a Markdown table."""
     lines = ['| # | problem | delta | method | style | steps | achieved [95 % CI] | '
@@ -203,13 +210,14 @@ def row_method(s: dict) -> str:
 
 
 def hold_table(summaries: list[dict]) -> list[str]:
-    """The hold measures of the rows that have them, as Markdown lines (none: [])."""
+    """The hold measures of the rows that have them, as Markdown lines (none: []): each
+    seed's returned policy on its own episode, and that episode's value (the fitness)."""
     held = [s for s in summaries if 'holding' in s['final']]
     if not held:
         return []
     lines = ['', '| # | problem | method | hold fraction | 95 % interval | >= 0.95 | '
-             '>= 0.9, no rail contact | first entry step | rail contacts |',
-             '|---|---|---|---|---|---|---|---|---|']
+             '>= 0.9, no rail contact | first entry step | rail contacts | value |',
+             '|---|---|---|---|---|---|---|---|---|---|']
     for s in held:
         f = s['final']
         ci = f['hold_fraction_ci95']
@@ -219,5 +227,5 @@ def hold_table(summaries: list[dict]) -> list[str]:
                      f"| {f['hold_fraction_mean']:.3f} ± {f['hold_fraction_std']:.3f} "
                      f"| {ci} | {f['holding']}/{f['runs']} "
                      f"| {f['holding_clean']}/{f['runs']} | {first} "
-                     f"| {f['rail_contacts_mean']:.2f} |")
+                     f"| {f['rail_contacts_mean']:.2f} | {_value_text(f)} |")
     return lines
