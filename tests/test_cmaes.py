@@ -15,6 +15,7 @@ from sapga_ros.training.loop import TrainConfig, train
 from sim_nodes.problem import load_problem
 
 BUDGET = 200_000
+GENERATIONS = 12
 
 
 def train_cmaes(problem: str, steps: int, seed: int, **params) -> tuple:
@@ -164,3 +165,30 @@ def test_misuse_is_refused():
                    {'popsize': -3}, {'sigma0': math.nan}):
         with pytest.raises(ConfigError):
             CmaesParams(**kwargs)
+
+
+@pytest.mark.parametrize('problem_name', ['acrobot', 'pdip'])
+def test_a_seed_gives_the_same_strategy_whatever_the_blas_thread_count(problem_name):
+    """OpenBLAS's sums depend on how many threads it uses (by default the machine's cores);
+    the strategy's linear algebra runs on one, so a seed's run is the same on a machine of
+    any size and whatever the caller set."""
+    from threadpoolctl import threadpool_limits
+    problem = load_problem(problem_name)
+
+    def strategy(threads: int) -> tuple:
+        with threadpool_limits(limits=threads, user_api='blas'):
+            opt = Cmaes.create(problem, CmaesParams(popsize=100), seed=5)
+            for _ in range(GENERATIONS):
+                x = np.array([genes_of(p) for p in opt.ask()])
+                fitness = np.sin(7.0 * x).sum(axis=1) + (x ** 2).sum(axis=1)
+                n = len(x)
+                opt.tell(-fitness, np.ones(n), np.ones(n, dtype=np.int64),
+                         np.zeros(n, dtype=bool), [np.ones(50, dtype=bool)] * n)
+            return opt.es.mean.copy(), opt.es.sigma, opt.es.C.copy()
+
+    def genes_of(policy) -> np.ndarray:
+        return np.concatenate([policy.states.ravel(), policy.actions.astype(float)])
+
+    one, many = strategy(1), strategy(2)
+    assert np.array_equal(one[0], many[0]) and one[1] == many[1]
+    assert np.array_equal(one[2], many[2])

@@ -12,9 +12,14 @@ population in one parallel batch), and pycma minimises -return (NaN ranks worst)
 Randomness comes from one ``numpy.random.Generator`` seeded with ``seed``: the initial mean
 (uniform in [0, 1]) and pycma's normal draws (its ``randn`` option; pycma's ``seed`` option
 would seed NumPy's global generator, which any other code may draw from, and treats 0 as
-"from the clock").  A run is deterministic for a seed.  When pycma's own termination
-criteria fire before the budget is spent (flat fitness: every episode of the mountain car
-times out), the strategy restarts from a fresh random mean, as pycma's ``fmin`` restarts.
+"from the clock").  A run is deterministic for a seed.  pycma's linear algebra (the
+covariance's eigendecomposition, the sampling products) runs on one BLAS thread
+(threadpoolctl): OpenBLAS's sums depend on its thread count, by default the machine's
+cores, so on more threads a seed's run would differ between machines of different sizes,
+and workers running side by side would each start as many threads as there are cores.
+When pycma's own termination criteria fire before the budget is spent (flat fitness: every
+episode of the mountain car times out), the strategy restarts from a fresh random mean, as
+pycma's ``fmin`` restarts.
 
 A checkpoint holds no pycma object (that would need pickle): it holds the fitness values
 told in every generation (``told``), the best candidate's genes and the counters.  Resuming
@@ -30,12 +35,23 @@ from dataclasses import asdict, dataclass
 
 import cma
 import numpy as np
+from threadpoolctl import ThreadpoolController
 
 from sapga_ros.errors import CheckpointError, ConfigError
 from sapga_ros.optim.base import Optimizer, Result, State
 from sim_nodes.params import check, param
 from sapga_ros.policies.exemplar import ExemplarPolicy
 from sim_nodes.problem import Problem
+
+
+_BLAS: list[ThreadpoolController] = []
+
+
+def one_blas_thread():
+    """A context in which the BLAS libraries loaded (NumPy's, SciPy's) use one thread."""
+    if not _BLAS:
+        _BLAS.append(ThreadpoolController())
+    return _BLAS[0].limit(limits=1, user_api='blas')
 
 
 @dataclass(frozen=True)
@@ -112,7 +128,8 @@ class Cmaes(Optimizer):
                 'verbose': -9, 'verb_log': 0, 'verb_disp': 0}
         if p.popsize:
             opts['popsize'] = p.popsize
-        return cma.CMAEvolutionStrategy(x0, p.sigma0, opts)
+        with one_blas_thread():
+            return cma.CMAEvolutionStrategy(x0, p.sigma0, opts)
 
     def _randn(self, *shape: int) -> np.ndarray:
         return self.rng.standard_normal(shape)
@@ -121,15 +138,17 @@ class Cmaes(Optimizer):
         """This generation's candidate vectors (restarting first if pycma stopped)."""
         if self._asked is not None:
             raise RuntimeError('ask() called twice without tell()')
-        if self.es.stop():
-            self.restarts += 1
-            self.es = self._strategy()
-        self._asked = self.es.ask()
+        with one_blas_thread():
+            if self.es.stop():
+                self.restarts += 1
+                self.es = self._strategy()
+            self._asked = self.es.ask()
         return self._asked
 
     def _tell_fitness(self, fitness: np.ndarray) -> None:
         """pycma's tell of the last asked vectors (fitness: -return, minimised)."""
-        self.es.tell(self._asked, [float(f) for f in fitness])
+        with one_blas_thread():
+            self.es.tell(self._asked, [float(f) for f in fitness])
         self._told.append(np.asarray(fitness, dtype=np.float64))
         self._asked = None
         self.generation += 1
