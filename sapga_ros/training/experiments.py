@@ -22,7 +22,7 @@ from typing import BinaryIO, Callable, Iterator
 from sapga_ros.errors import ConfigError, DataFileError
 from sapga_ros.io.atomic import write_atomic
 from sapga_ros.io.jsonfile import dumps, write_json
-from sapga_ros.training.experiment_report import markdown_table, summarise
+from sapga_ros.training.experiment_report import markdown_table, row_method, summarise
 from sapga_ros.training.experiment_checks import check_request, subdir
 from sapga_ros.training.experiment_set import MAX_STEPS, Experiment, LimitSearch, run_seeds
 from sapga_ros.training.run_files import read_run, run_path as _run_path, run_state
@@ -305,8 +305,8 @@ def _summarise(name: str, exps: list[Experiment], row_seeds: dict, budgets: dict
     write_atomic(out / 'runs.json', write_runs)
     for exp, s in zip(exps, summaries):
         f = s['final']
-        style = f'{exp.style} {exp.variant}' if exp.method == 'sapga' else ''
-        log(f'#{exp.id} {exp.method} {style} on {exp.problem}, delta {exp.delta}, '
+        style = f' ({exp.style})' if exp.method == 'sapga' else ''
+        log(f'#{exp.id} {row_method(s)}{style} on {exp.problem}, delta {exp.delta}, '
             f'{budgets[exp.id]:,d} steps: achieved '
             f"{f['achieved']}/{f['runs']}, best value {f['best_value_mean']:.1f} +- "
             f"{f['best_value_std']:.1f}, delta* {f['delta_star_mean']:.4f} +- "
