@@ -30,6 +30,7 @@ included; the generator state the replay reaches must equal the saved one.
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import asdict, dataclass
 
@@ -44,14 +45,15 @@ from sapga_ros.policies.exemplar import ExemplarPolicy
 from sim_nodes.problem import Problem
 
 
-_BLAS: list[ThreadpoolController] = []
+@functools.cache
+def _blas() -> ThreadpoolController:
+    """The thread pools of the libraries loaded at the first call (NumPy's BLAS among them)."""
+    return ThreadpoolController()
 
 
 def one_blas_thread():
     """A context in which the BLAS libraries loaded (NumPy's, SciPy's) use one thread."""
-    if not _BLAS:
-        _BLAS.append(ThreadpoolController())
-    return _BLAS[0].limit(limits=1, user_api='blas')
+    return _blas().limit(limits=1, user_api='blas')
 
 
 @dataclass(frozen=True)

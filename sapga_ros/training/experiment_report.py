@@ -149,7 +149,7 @@ def returned_text(final: dict) -> str:
     them)."""
     if 'policy_value_mean' not in final:
         return 'n/a'
-    return (f"{final['policy_value_mean']:.1f} ± {final['policy_value_std']:.1f}, "
+    return (f'{_value_text(final)}, '
             f"{final['policy_delta_star_mean']:.4f} ± {final['policy_delta_star_std']:.4f}, "
             f"{count_text(final['policy_reached'], final['runs'], final, 'policy_reached')}, "
             f"{final['policy_rail_contacts_mean']:.1f} (in {final['policy_rail_runs']} runs)")
