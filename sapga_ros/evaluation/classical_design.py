@@ -50,7 +50,9 @@ def basin_c(policy: ControlledPolicy, delta: float, samples: int = 24, steps: in
     quantised LQR, started from ``samples`` states on x'Px = c, ends every episode of
     ``steps`` steps with its second half in S_delta: an empirical catch region
     (deterministic in ``seed``; the plant applies each command ``policy.delay`` steps
-    late)."""
+    late).  The probe episodes run all their steps whatever the problem's own episode end:
+    on a problem whose episode ends in S_delta they would end at the first entry, and the
+    region would be measured empty."""
     pr = policy.problem
     rng = np.random.default_rng(seed)
     directions = rng.normal(size=(samples, pr.dim)) * half_widths(pr)
@@ -63,7 +65,8 @@ def basin_c(policy: ControlledPolicy, delta: float, samples: int = 24, steps: in
     for _ in range(40):
         ok = True
         for x in unit * np.sqrt(c):
-            start = dataclasses.replace(pr, initial=tuple(pr.best_state + x), n_step=steps)
+            start = dataclasses.replace(pr, initial=tuple(pr.best_state + x), n_step=steps,
+                                        ends_in_goal=False)
             probe.problem = start
             ep = Evaluator(start, delta, disturbance=late).episode(probe)
             tail = ep.states[steps // 2:]

@@ -245,8 +245,13 @@ def _rounds(config: TrainConfig, initial: list[ExemplarPolicy] = (),
             raise ConfigError('--catch lqr hands exemplar policies over to the LQR: SAP-GA only')
         from sapga_ros.evaluation.classical_design import classical_policy
         from sapga_ros.policies.classical import with_catch
-        catch = with_catch(ExemplarPolicy(problem, np.zeros((0, problem.dim))),
-                           classical_policy(problem, delay=config.catch_delay))
+        design = classical_policy(problem, delay=config.catch_delay)
+        if not design.c > 0:
+            raise ConfigError(f'{problem.name}: the LQR catch region measured empty (its LQR, '
+                              f'quantised to the actions {list(problem.actions)}, keeps '
+                              f'S_{problem.default_delta:g} from none of the probe starts): '
+                              '--catch lqr would add nothing')
+        catch = with_catch(ExemplarPolicy(problem, np.zeros((0, problem.dim))), design)
         evaluator.catch = catch.control
     opt, history = _start(config, problem, delta, list(initial))
     if config.catch_sigma:
