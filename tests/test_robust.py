@@ -69,6 +69,51 @@ def test_a_disturbed_run_is_the_same_for_any_thread_count_and_after_resume(tmp_p
         robust_run(checkpoint=str(ck), resume=True, disturbance='latency')
 
 
+def test_redraw_keys_each_generations_draws_and_reevaluates_the_parents(acrobot_problem):
+    """With redraw every generation meets K new draws (generation g keys (seed, g, 0, e)),
+    every member of it the same ones, parents re-evaluated: the returned policy's value is
+    its statistic on the last generation's draws, which a fixed-draw run's is not."""
+    run = robust_run(redraw=True, steps=200_000)
+    g = run.stats['generation'] - 1
+    assert g > 2 and run.policy.meta['redraw'] is True
+    ev = Evaluator(acrobot_problem, 0.05, disturbance=load_disturbance('field'))
+    ev.generation = g
+    last = evaluate_robust(ev, [run.policy], Robust(3, 'q10', seed=4, redraw=True))
+    assert last.returns[0] == run.policy.meta['value']
+    ev.generation = 0
+    first = evaluate_robust(ev, [run.policy], Robust(3, 'q10', seed=4, redraw=True))
+    assert first.returns[0] != run.policy.meta['value']
+    fixed = robust_run(steps=200_000)
+    assert fixed.stats != run.stats and 'redraw' not in fixed.policy.meta
+    # each generation evaluates its parents again: more evaluations than the fixed run's
+    # generations alike
+    per_gen = run.stats['evaluations'] / run.stats['generation']
+    assert per_gen == SMALL.n_pop + SMALL.n_pop // 2 * SMALL.n_child
+
+
+def test_a_redrawn_run_is_the_same_for_any_thread_count_and_after_resume(tmp_path):
+    one = robust_run(redraw=True, jobs=1)
+    two = robust_run(redraw=True, jobs=2)
+    assert one.stats == two.stats
+    np.testing.assert_array_equal(one.policy.states, two.policy.states)
+    ck = tmp_path / 'ck'
+    robust_run(redraw=True, steps=25_000, checkpoint=str(ck), checkpoint_every=1)
+    resumed = robust_run(redraw=True, checkpoint=str(ck), resume=True)
+    assert resumed.stats == one.stats
+    np.testing.assert_array_equal(resumed.policy.states, one.policy.states)
+    with pytest.raises(Exception, match='redraw'):
+        robust_run(checkpoint=str(ck), resume=True)
+
+
+@pytest.mark.parametrize('kw, needle', [
+    (dict(disturbance='none', episodes=1), 'redraw: drawing episodes anew needs'),
+    (dict(method='cmaes'), 'redraw: episodes drawn anew each generation: SAP-GA only'),
+])
+def test_redraw_without_disturbed_sapga_episodes_is_refused(kw, needle):
+    with pytest.raises(ConfigError, match=needle):
+        TrainConfig(problem='acrobot', redraw=True, **{'disturbance': 'field', **kw})
+
+
 def test_eval_reports_success_rate_and_distributions(tmp_path):
     policy = tmp_path / 'lqr.json'
     made = subprocess.run([*SAPGA, 'classical', '--problem', 'acrobot_hold', '--out', policy],
@@ -126,6 +171,17 @@ def test_experiment_rows_take_the_robust_settings():
         with pytest.raises(ConfigError, match=r'set\.experiments\[0\].*' + message):
             _experiment({**row, **bad}, 'set.experiments[0]')
     assert any(e.catch == 'lqr' for e in load_experiments('hold')[0])
+    redrawn = _experiment({**row, 'disturbance': 'field', 'episodes': 8, 'redraw': True},
+                          'set.experiments[0]')
+    assert redrawn.redraw and 'redraw' not in run_key('s', robust, 0, 1000)['experiment']
+    assert run_key('s', redrawn, 0, 1000)['experiment']['redraw'] is True
+    for bad, message in (({'redraw': 'yes', 'episodes': 8}, 'redraw: expected true or false'),
+                         ({'redraw': True}, 'redraw: episodes drawn anew each generation'),
+                         ({'redraw': True, 'episodes': 8, 'method': 'cmaes'},
+                          'redraw: episodes drawn anew')):
+        with pytest.raises(ConfigError, match=r'set\.experiments\[0\].*' + message):
+            _experiment({**row, **bad}, 'set.experiments[0]')
+    assert [e.redraw for e in load_experiments('robust')[0]] == [False, False, True]
 
 
 def test_cmaes_takes_robust_fitness(acrobot_problem):

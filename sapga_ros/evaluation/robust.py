@@ -4,9 +4,11 @@ Draw keys are (seed, generation, policy, episode) (``sim_nodes.draws``).  Traini
 episode e < K as (seed, 0, TRAINING, e): every policy of a run meets the same K draws (common
 random numbers, within each generation and across them), so a value once computed stays
 valid and SAP-GA's reuse of known values (and checkpoint/resume) is unchanged.  The price:
-the K draws are fixed for the run, so a policy may fit them; a larger K lowers that, and the
-evaluation (``sapga eval --disturbance``) draws with ``policy`` = HELD_OUT, episodes the run
-never saw.
+the K draws are fixed for the run, so a policy may fit them; a larger K lowers that.  With
+``redraw`` the keys are (seed, g, TRAINING, e) in generation g: every member of a generation
+meets the same K draws, parents included (SAP-GA re-evaluates them), and each generation
+new ones.  The evaluation (``sapga eval --disturbance``) draws with ``policy`` = HELD_OUT,
+episodes the run never saw.
 """
 from __future__ import annotations
 
@@ -37,17 +39,19 @@ class Robust:
     episodes: int
     stat: str = 'mean'
     seed: int = 0
+    redraw: bool = False                   # training draws keyed by generation, not fixed
 
     def __post_init__(self) -> None:
         check_stat(self.stat)
         if self.episodes < 1:
             raise ConfigError(f'episodes: expected a positive integer, got {self.episodes}')
 
-    def keys(self, count: int, purpose: int = TRAINING) -> np.ndarray:
+    def keys(self, count: int, purpose: int = TRAINING, generation: int = 0) -> np.ndarray:
         """(count x K, 4) draw keys: policy i's episode e is row i K + e."""
         e = np.tile(np.arange(self.episodes), count)
         keys = np.zeros((count * self.episodes, 4), dtype=np.int64)
         keys[:, 0] = self.seed
+        keys[:, 1] = generation
         keys[:, 2] = purpose
         keys[:, 3] = e
         return keys
@@ -73,6 +77,7 @@ class RobustEvaluator(Evaluator):
     def __init__(self, problem, delta: float, disturbance: Disturbance, robust: Robust) -> None:
         super().__init__(problem, delta, disturbance=disturbance)
         self.robust = robust
+        self.generation = 0                # the draws' generation (with robust.redraw)
 
     def evaluate(self, policies: list, keys: None = None) -> BatchResult:
         if keys is not None:
@@ -87,7 +92,9 @@ def evaluate_robust(evaluator, policies: list, robust: Robust):
     to in any; hold measures: first entry the latest, held and contacts summed."""
     k = robust.episodes
     count = len(policies)
-    r = _each_episode(evaluator, [p for p in policies for _ in range(k)], robust.keys(count))
+    generation = getattr(evaluator, 'generation', 0) if robust.redraw else 0
+    r = _each_episode(evaluator, [p for p in policies for _ in range(k)],
+                      robust.keys(count, generation=generation))
 
     def per(a: np.ndarray) -> np.ndarray:
         return a.reshape(count, k)
@@ -143,10 +150,10 @@ def robustness(policy, delta: float, disturbance: str, episodes: int, seed: int 
 
 
 def robust_evaluator(problem, delta: float, disturbance: str, episodes: int, stat: str,
-                     seed: int):
+                     seed: int, redraw: bool = False):
     """The evaluator of robust fitness (each policy on ``episodes`` episodes of profile
     ``disturbance``), or None for the plain evaluation (none, one episode)."""
     if disturbance == 'none' and episodes == 1:
         return None
     return RobustEvaluator(problem, delta, load_disturbance(disturbance),
-                           Robust(episodes, stat, seed))
+                           Robust(episodes, stat, seed, redraw))

@@ -16,6 +16,10 @@ individual carries a catch scale (its region x'Px <= c with c = the design's c x
 child inherits one parent's (a fair coin), times exp(sigma N(0, 1)), clipped to
 ``SCALE_RANGE``; a refreshed clone keeps its star's.  These draws come from a generator of
 their own, so the run's generator draws as without them.
+
+With ``redraw`` (robust fitness whose episodes are drawn anew each generation) a value holds
+for one generation only: ``ask`` returns the parents too, to be evaluated on the
+generation's draws beside their children, and the best is the generation's best.
 """
 from __future__ import annotations
 
@@ -119,6 +123,7 @@ class SapGA(Optimizer):
     catch: ControlledPolicy | None = None  # the design's catch, when its region evolves
     catch_sigma: float = 0.0               # log-normal mutation size of the catch scale
     catch_rng: np.random.Generator | None = None   # draws of the catch scales only
+    redraw: bool = False                   # episodes drawn anew each generation (see above)
 
     def evolve_catch(self, catch: ControlledPolicy, sigma: float, seed: int) -> None:
         """Evolve each individual's catch scale (``catch``: the design's LQR and c); ``ask``
@@ -152,6 +157,9 @@ class SapGA(Optimizer):
         p = self.params
         order = self.rng.permutation(p.n_pop).tolist()            # random couples
         pop = self.population
+        if self.redraw:                     # last generation's values: other episodes
+            for m in pop:
+                m.value = math.nan
         couples = [(order[2 * f], order[2 * f + 1]) for f in range(p.n_pop // 2)]
         kids, repaired = crossovers([(pop[i].policy, pop[j].policy) for i, j in couples],
                                     self.rng, p.n_child, p.l_min, p.l_max, p.crossover_rate,
@@ -212,7 +220,7 @@ class SapGA(Optimizer):
                 st.delta_star = min(st.delta_star, float(seen.min()))
             st.best_value = max(st.best_value, float(values.max()))
             first = self._pending[self._first_best(values, dstar)]
-            if self.best is None or self._rank(first) > self._rank(self.best):
+            if self.best is None or self.redraw or self._rank(first) > self._rank(self.best):
                 self.best = first
         rank = self._rank
         stars = []

@@ -83,7 +83,8 @@ def summarise(exp: Experiment, runs: Iterable[dict], budget: int) -> dict:
         final.update(hold_summary(finals))
     return {'id': exp.id, 'problem': exp.problem, 'method': exp.method, 'delta': exp.delta,
             'style': exp.style, 'variant': exp.variant, 'catch': exp.catch,
-            'disturbance': exp.disturbance, 'paper': exp.paper,
+            'disturbance': exp.disturbance, 'episodes': exp.episodes, 'redraw': exp.redraw,
+            'paper': exp.paper,
             'group': exp.group,
             'steps': budget, 'seeds': seeds, 'grid': grid.tolist(),
             'best_value': stat(best), 'delta_star': stat(dstar),
@@ -205,7 +206,8 @@ def row_method(s: dict) -> str:
     if s.get('catch', 'none') != 'none':
         text += ' + LQR catch'
     if s.get('disturbance', 'none') != 'none':
-        text += f" robust ({s['disturbance']})"
+        redrawn = ', drawn each generation' if s.get('redraw') else ''
+        text += f" robust ({s['disturbance']}, K = {s.get('episodes', 1)}{redrawn})"
     return text
 
 

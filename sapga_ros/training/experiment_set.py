@@ -49,6 +49,7 @@ class Experiment:
     disturbance: str = 'none'              # robust fitness (sapga train --disturbance)
     episodes: int = 1                      # disturbed episodes per evaluation
     robust_stat: str = 'mean'              # value over the episodes: mean or qNN
+    redraw: bool = False                   # the episodes drawn anew each generation
 
 
 def _count(value: Any, where: str, low: int, high: int) -> int:
@@ -61,7 +62,8 @@ def _count(value: Any, where: str, low: int, high: int) -> int:
 
 _SET_KEYS = ('name', 'seeds', 'experiments', 'limits')
 _EXPERIMENT_KEYS = ('id', 'problem', 'delta', 'method', 'steps', 'style', 'paper', 'group',
-                    'variant', 'seeds', 'catch', 'disturbance', 'episodes', 'robust_stat')
+                    'variant', 'seeds', 'catch', 'disturbance', 'episodes', 'robust_stat',
+                    'redraw')
 _LIMIT_KEYS = ('problem', 'alternative_goal', 'width', 'cells', 'per_cell')
 
 
@@ -70,6 +72,14 @@ def _known_keys(doc: dict, known: tuple[str, ...], where: str) -> None:
     unknown = [str(k)[:40] for k in doc if k not in known]
     if unknown:
         raise ConfigError(f'{where}: unknown key {unknown[0]!r} (known: {", ".join(known)})')
+
+
+def _flag(e: dict, key: str, where: str) -> bool:
+    """A true/false entry of a row (default false)."""
+    value = e.get(key, False)
+    if not isinstance(value, bool):
+        raise ConfigError(f'{where}.{key}: expected true or false, got {str(value)[:40]!r}')
+    return value
 
 
 def _text(e: dict, key: str, where: str, default: str, max_len: int) -> str:
@@ -100,6 +110,9 @@ def _robust(exp: Experiment, where: str) -> None:
     robust = exp.disturbance != 'none' or exp.episodes > 1
     if robust and exp.method not in ('sapga', 'cmaes'):
         raise ConfigError(f'{where}: disturbance and episodes: SAP-GA and CMA-ES rows only')
+    if exp.redraw and not (robust and exp.method == 'sapga'):
+        raise ConfigError(f'{where}.redraw: episodes drawn anew each generation: SAP-GA rows '
+                          'with a disturbance or episodes > 1 only')
 
 
 def _experiment(e: Any, where: str) -> Experiment:
@@ -124,7 +137,8 @@ def _experiment(e: Any, where: str) -> Experiment:
                      _text(e, 'catch', where, 'none', 40),
                      _text(e, 'disturbance', where, 'none', 200),
                      _count(e.get('episodes', 1), f'{where}.episodes', 1, 10_000),
-                     _text(e, 'robust_stat', where, 'mean', 40))
+                     _text(e, 'robust_stat', where, 'mean', 40),
+                     _flag(e, 'redraw', where))
     if not _WORD_RE.fullmatch(exp.group):
         raise ConfigError(f'{where}.group: expected a word (letters, digits, _ and -), '
                           f'got {exp.group!r}')
@@ -242,7 +256,7 @@ def run_seeds(exp: Experiment, seeds: list[int], steps: int) -> list[dict]:
                                params=SapgaParams(style=exp.style, variant=exp.variant),
                                cmaes=CmaesParams(popsize=CMAES_POP), catch=exp.catch,
                                disturbance=exp.disturbance, episodes=exp.episodes,
-                               robust_stat=exp.robust_stat)
+                               robust_stat=exp.robust_stat, redraw=exp.redraw)
                    for seed in seeds]
         if exp.method == 'ql' and len(configs) > 1:
             results = train_lanes(configs)

@@ -35,7 +35,8 @@ def run_path(out: Path, exp: Experiment, seed: int) -> Path:
     return _run_path(out, exp.id, seed)
 
 
-UNSET = (('catch', 'none'), ('disturbance', 'none'), ('episodes', 1), ('robust_stat', 'mean'))
+UNSET = (('catch', 'none'), ('disturbance', 'none'), ('episodes', 1), ('robust_stat', 'mean'),
+         ('redraw', False))
 
 
 def run_key(name: str, exp: Experiment, seed: int, budget: int) -> dict:

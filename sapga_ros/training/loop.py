@@ -83,6 +83,9 @@ class TrainConfig:
                           'every policy of the run)', low=1, high=10_000)
     robust_stat: str = param('mean', 'value of a policy over its episodes: mean, or qNN, the '
                              'NN-th percentile of the returns (a lower quantile, e.g. q10)')
+    redraw: bool = param(False, 'draw the disturbed episodes anew each generation (the same '
+                         'draws for every member of that generation, parents re-evaluated '
+                         'on them) instead of once for the run')
     params: SapgaParams = field(default_factory=SapgaParams)
     ql: QlParams = field(default_factory=QlParams)
     cmaes: CmaesParams = field(default_factory=CmaesParams)
@@ -94,6 +97,10 @@ class TrainConfig:
             raise ConfigError('catch_delay: the delay of the LQR catch needs catch lqr')
         if self.catch_sigma and self.catch != 'lqr':
             raise ConfigError('catch_sigma: evolving the catch region needs catch lqr')
+        if self.redraw and not self.disturbed:
+            raise ConfigError('redraw: drawing episodes anew needs a disturbance or episodes > 1')
+        if self.redraw and self.method != 'sapga':
+            raise ConfigError('redraw: episodes drawn anew each generation: SAP-GA only')
 
     @property
     def disturbed(self) -> bool:
@@ -125,6 +132,8 @@ def run_settings(config: TrainConfig, problem: Problem, delta: float) -> dict:
     cls = METHODS[config.method]
     robust = {'disturbance': config.disturbance, 'episodes': config.episodes,
               'robust_stat': config.robust_stat} if config.disturbed else {}
+    if config.redraw:                   # absent when off: earlier checkpoints still resume
+        robust['redraw'] = True
     # the catch is in the loop: a hybrid run resumes only as the same hybrid (no catch: the
     # paper's settings, so that checkpoints written before the catch existed still resume)
     hybrid = ({'catch': config.catch, 'catch_delay': config.catch_delay}
@@ -256,6 +265,8 @@ def _rounds(config: TrainConfig, initial: list[ExemplarPolicy] = (),
     opt, history = _start(config, problem, delta, list(initial))
     if config.catch_sigma:
         opt.evolve_catch(catch, config.catch_sigma, config.seed)
+    if config.redraw:
+        opt.redraw = True
     start = last_save = time.perf_counter()
     steps_at_start, compiled_at_start = opt.steps, compile_seconds()
     alt_star = min([math.inf] + [r['delta_star_alt'] for r in history[-1:]
@@ -267,6 +278,8 @@ def _rounds(config: TrainConfig, initial: list[ExemplarPolicy] = (),
             break
         yield opt
         best_before = opt.best
+        if config.redraw:
+            evaluator.generation = opt.iteration
         results, alt = _evaluate(evaluator, opt.ask())
         opt.tell(*results)
         alt_star = min(alt_star, alt)
@@ -308,7 +321,8 @@ def make_evaluator(config: TrainConfig, problem: Problem, delta: float) -> Evalu
         raise ConfigError('--disturbance and --episodes evaluate policies: SAP-GA and CMA-ES '
                           'only')
     return robust_evaluator(problem, delta, config.disturbance, config.episodes,
-                            config.robust_stat, config.seed) or Evaluator(problem, delta)
+                            config.robust_stat, config.seed, config.redraw) \
+        or Evaluator(problem, delta)
 
 
 def hold_of(policy: Any, delta: float) -> dict:
@@ -346,7 +360,8 @@ def _best_policy(config: TrainConfig, opt: Optimizer, delta: float, jobs: int,
                    'time': time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime())}
     if config.disturbed:        # value and delta*: over the run's disturbed episodes
         policy.meta.update(disturbance=config.disturbance, episodes=config.episodes,
-                           robust_stat=config.robust_stat)
+                           robust_stat=config.robust_stat,
+                           **({'redraw': True} if config.redraw else {}))
     if not policy.problem.ends_in_goal:
         policy.meta.update(hold_of(policy, delta))
     return policy

@@ -109,6 +109,8 @@ def check_summary(doc: Any, where: str) -> dict:
                                   ('catch', 'none', WORD), ('disturbance', 'none', None),
                                   ('group', 'paper', WORD), ('paper', '', None)):
         out[key] = schema.text(s.get(key, default), f'{where}.{key}', pattern=pattern)
+    out['episodes'] = schema.integer(s.get('episodes', 1), f'{where}.episodes', 1, 10_000)
+    out['redraw'] = schema.boolean(s.get('redraw', False), f'{where}.redraw')
     return out
 
 
