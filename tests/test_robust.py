@@ -181,7 +181,17 @@ def test_experiment_rows_take_the_robust_settings():
                           'redraw: episodes drawn anew')):
         with pytest.raises(ConfigError, match=r'set\.experiments\[0\].*' + message):
             _experiment({**row, **bad}, 'set.experiments[0]')
-    assert [e.redraw for e in load_experiments('robust')[0]] == [False, False, True]
+    robust_set = load_experiments('robust')[0]
+    assert [e.redraw for e in robust_set] == [False, False, True, False, False]
+    assert [e.catch_delay for e in robust_set] == [0, 0, 0, 1, 1]
+    delayed = _experiment({**row, 'catch': 'lqr', 'catch_delay': 1}, 'set.experiments[0]')
+    assert run_key('s', delayed, 0, 1000)['experiment']['catch_delay'] == 1
+    assert 'catch_delay' not in run_key('s', redrawn, 0, 1000)['experiment']
+    for bad, message in (({'catch_delay': 1}, 'catch_delay: the delay of the LQR catch needs'),
+                         ({'catch': 'lqr', 'catch_delay': 99},
+                          r'catch_delay: expected a whole number in \[0, 16\]')):
+        with pytest.raises(ConfigError, match=r'set\.experiments\[0\].*' + message):
+            _experiment({**row, **bad}, 'set.experiments[0]')
 
 
 def test_cmaes_takes_robust_fitness(acrobot_problem):

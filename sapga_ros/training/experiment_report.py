@@ -83,6 +83,7 @@ def summarise(exp: Experiment, runs: Iterable[dict], budget: int) -> dict:
         final.update(hold_summary(finals))
     return {'id': exp.id, 'problem': exp.problem, 'method': exp.method, 'delta': exp.delta,
             'style': exp.style, 'variant': exp.variant, 'catch': exp.catch,
+            'catch_delay': exp.catch_delay,
             'disturbance': exp.disturbance, 'episodes': exp.episodes, 'redraw': exp.redraw,
             'paper': exp.paper,
             'group': exp.group,
@@ -205,6 +206,8 @@ def row_method(s: dict) -> str:
         text += f" [{s['variant']}]"
     if s.get('catch', 'none') != 'none':
         text += ' + LQR catch'
+        if s.get('catch_delay'):
+            text += f" (delay {s['catch_delay']})"
     if s.get('disturbance', 'none') != 'none':
         redrawn = ', drawn each generation' if s.get('redraw') else ''
         text += f" robust ({s['disturbance']}, K = {s.get('episodes', 1)}{redrawn})"

@@ -12,6 +12,7 @@ from typing import Any
 import yaml
 
 from sapga_ros.errors import ConfigError, UnknownProblemError
+from sapga_ros.policies.controller_row import MAX_DELAY
 from sapga_ros.policies.styles import STYLES
 from sapga_ros.io.bounded import load_yaml, read_bounded
 from sim_nodes.goal import alternative_goal
@@ -50,6 +51,7 @@ class Experiment:
     episodes: int = 1                      # disturbed episodes per evaluation
     robust_stat: str = 'mean'              # value over the episodes: mean or qNN
     redraw: bool = False                   # the episodes drawn anew each generation
+    catch_delay: int = 0                   # MDP steps of delay the catch's LQR is designed for
 
 
 def _count(value: Any, where: str, low: int, high: int) -> int:
@@ -63,7 +65,7 @@ def _count(value: Any, where: str, low: int, high: int) -> int:
 _SET_KEYS = ('name', 'seeds', 'experiments', 'limits')
 _EXPERIMENT_KEYS = ('id', 'problem', 'delta', 'method', 'steps', 'style', 'paper', 'group',
                     'variant', 'seeds', 'catch', 'disturbance', 'episodes', 'robust_stat',
-                    'redraw')
+                    'redraw', 'catch_delay')
 _LIMIT_KEYS = ('problem', 'alternative_goal', 'width', 'cells', 'per_cell')
 
 
@@ -138,13 +140,16 @@ def _experiment(e: Any, where: str) -> Experiment:
                      _text(e, 'disturbance', where, 'none', 200),
                      _count(e.get('episodes', 1), f'{where}.episodes', 1, 10_000),
                      _text(e, 'robust_stat', where, 'mean', 40),
-                     _flag(e, 'redraw', where))
+                     _flag(e, 'redraw', where),
+                     _count(e.get('catch_delay', 0), f'{where}.catch_delay', 0, MAX_DELAY))
     if not _WORD_RE.fullmatch(exp.group):
         raise ConfigError(f'{where}.group: expected a word (letters, digits, _ and -), '
                           f'got {exp.group!r}')
     if exp.catch not in CATCHES or (exp.catch != 'none' and exp.method != 'sapga'):
         raise ConfigError(f'{where}.catch: expected one of {", ".join(CATCHES)} (lqr: SAP-GA '
                           f'rows only), got {exp.catch!r}')
+    if exp.catch_delay and exp.catch != 'lqr':
+        raise ConfigError(f'{where}.catch_delay: the delay of the LQR catch needs catch: lqr')
     _robust(exp, where)
     from sapga_ros.optim.sapga import VARIANTS
     if exp.variant not in VARIANTS:
@@ -255,6 +260,7 @@ def run_seeds(exp: Experiment, seeds: list[int], steps: int) -> list[dict]:
                                steps=steps, seed=seed, jobs=1,
                                params=SapgaParams(style=exp.style, variant=exp.variant),
                                cmaes=CmaesParams(popsize=CMAES_POP), catch=exp.catch,
+                               catch_delay=exp.catch_delay,
                                disturbance=exp.disturbance, episodes=exp.episodes,
                                robust_stat=exp.robust_stat, redraw=exp.redraw)
                    for seed in seeds]

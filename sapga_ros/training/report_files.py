@@ -13,6 +13,7 @@ from typing import Any
 from sapga_ros.errors import DataFileError
 from sapga_ros.io import schema
 from sapga_ros.io.jsonfile import read_json
+from sapga_ros.policies.controller_row import MAX_DELAY
 from sapga_ros.training.experiment_set import MAX_SEEDS, MAX_STEPS, METHODS
 
 MAX_SUMMARY_BYTES = 16 << 20
@@ -111,6 +112,8 @@ def check_summary(doc: Any, where: str) -> dict:
         out[key] = schema.text(s.get(key, default), f'{where}.{key}', pattern=pattern)
     out['episodes'] = schema.integer(s.get('episodes', 1), f'{where}.episodes', 1, 10_000)
     out['redraw'] = schema.boolean(s.get('redraw', False), f'{where}.redraw')
+    out['catch_delay'] = schema.integer(s.get('catch_delay', 0), f'{where}.catch_delay', 0,
+                                        MAX_DELAY)
     return out
 
 
