@@ -37,8 +37,8 @@ def test_an_ends_in_goal_problem_has_its_hold_twins_catch_region(delay):
 
 def _start_inside(problem, catch, share: float):
     """A start on x'Px = share c along the region's second-stiffest axis, outside S_delta
-    (along its longest, the quantised LQR does not hold: the region is measured from
-    probe starts, not proven)."""
+    (along its longest the quantised LQR does not hold: the design's c is a margin times
+    the basin measured from probe starts)."""
     direction = np.linalg.eigh(catch.P)[1][:, 2]
     x = direction * np.sqrt(share * catch.c / (direction @ catch.P @ direction))
     start = dataclasses.replace(problem, initial=tuple(problem.best_state + x))
