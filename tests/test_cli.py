@@ -1,6 +1,7 @@
 """The ``sapga`` command as a user runs it: a real subprocess per call."""
 import json
 import os
+import re
 import subprocess
 import sys
 
@@ -167,3 +168,12 @@ def test_training_bench_measures_whole_runs_alone_and_side_by_side():
         alone, lanes = d[f'ql_{problem}_alone_steps_per_s'], d[f'ql_{problem}_lanes_steps_per_s']
         assert alone > 0 and lanes > 0
         assert d[f'ql_{problem}_lanes_speedup'] == pytest.approx(lanes / alone)
+
+
+def test_experiment_help_names_every_shipped_set():
+    from sim_nodes.problem import config_dir
+    r = sapga('experiment', '--help')
+    assert r.returncode == 0, r.stderr
+    text = ' '.join(r.stdout.split())
+    sets = sorted(p.stem for p in (config_dir() / 'experiments').glob('*.yaml'))
+    assert sets and all(re.search(rf'\b{name}\b', text) for name in sets), (sets, text)

@@ -51,8 +51,9 @@ def scale_value(text: str) -> float:
 
 
 def add_experiment_arguments(ex: argparse.ArgumentParser) -> None:
-    ex.add_argument('name', help='msg_configs/experiments/<name>.yaml (table2, styles), or '
-                                 '"report" to rewrite DIR/report.md from its runs')
+    ex.add_argument('name', help='msg_configs/experiments/<name>.yaml (table2, beyond, '
+                                 'styles, hold, robust), or "report" to rewrite DIR/report.md '
+                                 'from its runs')
     ex.add_argument('dir', nargs='?', help='with report: the experiment directory')
     ex.add_argument('--out', help='directory for runs/, summary.json, report.md, figures')
     ex.add_argument('--only', help='comma-separated experiment ids, e.g. 2,4')
