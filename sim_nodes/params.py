@@ -32,6 +32,7 @@ from typing import Any, Callable, Iterable, Sequence
 from sim_nodes.errors import ConfigError
 
 MAX_INT = 10 ** 15    # the largest integer parameter: fits a ROS int64, bounds a typo's harm
+MAX_EPISODES = 10_000  # disturbed episodes of one policy evaluation, at most
 TYPE_NAMES = {bool: 'boolean', int: 'integer', float: 'double', str: 'string',
               list: 'string array'}
 

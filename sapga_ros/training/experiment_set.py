@@ -17,7 +17,7 @@ from sapga_ros.policies.styles import STYLES
 from sapga_ros.io.bounded import load_yaml, read_bounded
 from sim_nodes.goal import alternative_goal
 from sim_nodes.jit import compile_seconds
-from sim_nodes.params import DELTA
+from sim_nodes.params import DELTA, MAX_EPISODES
 from sim_nodes.problem import Problem, config_dir, load_problem
 
 MAX_SET_BYTES = 1 << 20
@@ -138,7 +138,7 @@ def _experiment(e: Any, where: str) -> Experiment:
                      _count(e['seeds'], f'{where}.seeds', 1, MAX_SEEDS),
                      _text(e, 'catch', where, 'none', 40),
                      _text(e, 'disturbance', where, 'none', 200),
-                     _count(e.get('episodes', 1), f'{where}.episodes', 1, 10_000),
+                     _count(e.get('episodes', 1), f'{where}.episodes', 1, MAX_EPISODES),
                      _text(e, 'robust_stat', where, 'mean', 40),
                      _flag(e, 'redraw', where),
                      _count(e.get('catch_delay', 0), f'{where}.catch_delay', 0, MAX_DELAY))

@@ -41,7 +41,7 @@ from sapga_ros.optim.qlearner import QLearning, QlParams, learn_together
 from sapga_ros.optim.sapga import SapGA, SapgaParams
 from sapga_ros.training import checkpoints
 from sim_nodes.jit import compile_seconds
-from sim_nodes.params import DELTA, check, param
+from sim_nodes.params import DELTA, MAX_EPISODES, check, param
 from sim_nodes.problem import Problem, load_problem
 
 METHODS: dict[str, type[Optimizer]] = {'sapga': SapGA, 'ql': QLearning, 'cmaes': Cmaes}
@@ -80,7 +80,7 @@ class TrainConfig:
                              'fitness): a name in msg_configs/disturbances or a .yaml file; '
                              'none: the undisturbed model')
     episodes: int = param(1, 'disturbed episodes per policy evaluation (the same draws for '
-                          'every policy of the run)', low=1, high=10_000)
+                          'every policy of the run)', low=1, high=MAX_EPISODES)
     robust_stat: str = param('mean', 'value of a policy over its episodes: mean, or qNN, the '
                              'NN-th percentile of the returns (a lower quantile, e.g. q10)')
     redraw: bool = param(False, 'draw the disturbed episodes anew each generation (the same '

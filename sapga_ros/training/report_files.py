@@ -15,6 +15,7 @@ from sapga_ros.io import schema
 from sapga_ros.io.jsonfile import read_json
 from sapga_ros.policies.controller_row import MAX_DELAY
 from sapga_ros.training.experiment_set import MAX_SEEDS, MAX_STEPS, METHODS
+from sim_nodes.params import MAX_EPISODES
 
 MAX_SUMMARY_BYTES = 16 << 20
 MAX_INFO_BYTES = 1 << 20
@@ -110,7 +111,8 @@ def check_summary(doc: Any, where: str) -> dict:
                                   ('catch', 'none', WORD), ('disturbance', 'none', None),
                                   ('group', 'paper', WORD), ('paper', '', None)):
         out[key] = schema.text(s.get(key, default), f'{where}.{key}', pattern=pattern)
-    out['episodes'] = schema.integer(s.get('episodes', 1), f'{where}.episodes', 1, 10_000)
+    out['episodes'] = schema.integer(s.get('episodes', 1), f'{where}.episodes', 1,
+                                     MAX_EPISODES)
     out['redraw'] = schema.boolean(s.get('redraw', False), f'{where}.redraw')
     out['catch_delay'] = schema.integer(s.get('catch_delay', 0), f'{where}.catch_delay', 0,
                                         MAX_DELAY)
