@@ -170,6 +170,14 @@ def test_training_bench_measures_whole_runs_alone_and_side_by_side():
         assert d[f'ql_{problem}_lanes_speedup'] == pytest.approx(lanes / alone)
 
 
+@pytest.mark.parametrize('steps', ['5', '1e12', 'abc', 'nan'])
+def test_training_bench_refuses_run_lengths_out_of_range(steps):
+    r = sapga('bench', '--training', '--steps', steps)
+    last = r.stderr.strip().splitlines()[-1]                  # the usage, then one line
+    assert r.returncode == 2 and 'Traceback' not in r.stderr
+    assert '--steps' in last and 'expected an integer in [20000, 1000000000]' in last, last
+
+
 def test_experiment_help_names_every_shipped_set():
     from sim_nodes.problem import config_dir
     r = sapga('experiment', '--help')

@@ -7,7 +7,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from sapga_ros.errors import SapgaError
 from sapga_ros.optim.generation import crossovers, refreshes
+from sapga_ros.optim.pcg import pcg_doubles, set_state, state_of
 from sapga_ros.optim.operators import (parents_union, random_policy, refresh,
                                        uniform_crossover)
 from sapga_ros.policies.exemplar import concat_policies
@@ -89,3 +91,26 @@ def test_refreshes_draw_for_draw_as_one_by_one(style):
             np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
     assert fast_rng.bit_generator.state == slow_rng.bit_generator.state
     assert sum(n for _, n in fast) > 0 and fast[3][1] == 0
+
+
+@pytest.mark.parametrize('seed', [0, 7, 2**63 + 5])
+def test_inline_pcg64_draws_numpys_doubles_and_leaves_its_state(seed):
+    """A million ``pcg_double`` draws are ``Generator.random()``'s, bit for bit, and the
+    state put back is the generator's after the same draws (its buffered 32 bits kept)."""
+    ours, theirs = np.random.default_rng(seed), np.random.default_rng(seed)
+    ours.integers(0, 2**31, dtype=np.uint32)      # a buffered half word, kept
+    theirs.integers(0, 2**31, dtype=np.uint32)
+    words = state_of(ours)
+    drawn = np.empty(1_000_000)
+    pcg_doubles(words, drawn)
+    set_state(ours, words)
+    assert np.array_equal(drawn, theirs.random(len(drawn)))
+    assert ours.bit_generator.state == theirs.bit_generator.state
+    assert ours.random() == theirs.random()
+    assert ours.integers(0, 2**31, dtype=np.uint32) == theirs.integers(0, 2**31, dtype=np.uint32)
+
+
+def test_compiled_crossovers_refuse_another_bit_generator():
+    """The inline draws are PCG64's: another bit generator is refused, not misread."""
+    with pytest.raises(SapgaError, match='PCG64'):
+        state_of(np.random.Generator(np.random.MT19937(0)))

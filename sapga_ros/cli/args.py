@@ -17,7 +17,7 @@ from sapga_ros.errors import SapgaError
 from sim_nodes.options import add_param, add_settings, read_text
 from sim_nodes.params import MAX_INT
 
-__all__ = ['add_param', 'add_settings', 'check_output_dir', 'check_output_file',
+__all__ = ['add_param', 'add_settings', 'bench_steps', 'check_output_dir', 'check_output_file',
            'episode_steps', 'nonneg_int', 'nonneg_number', 'positive_int']
 
 
@@ -34,6 +34,7 @@ def _int_at_least(minimum: int, what: str, maximum: int = MAX_INT):
 positive_int = _int_at_least(1, 'a positive integer')
 nonneg_int = _int_at_least(0, 'an integer >= 0')
 episode_steps = _int_at_least(1, 'an integer in [1, 1000000]', 1_000_000)
+bench_steps = _int_at_least(20_000, 'an integer in [20000, 1000000000]', 1_000_000_000)
 
 
 def nonneg_number(text: str) -> float:

@@ -7,7 +7,7 @@
                [--disturbance NAME [--episodes N] [--seed S]]
     sapga robustness POLICY ... --out DIR [--disturbance NAME ...] [--scales F,F,...]
     sapga exemplars POLICY [--json] [--plot OUT.png] [--prune-unused OUT.json]
-    sapga bench [--json] [--ros [--problem P] [--realtime]] [--style S] [--training]
+    sapga bench [--json] [--ros [--problem P] [--realtime]] [--style S] [--training [--steps N]]
     sapga inspect BAG [--json] [--plot OUT.png] [--episode N]
     sapga bag reindex BAG
     sapga experiment NAME --out DIR [--only 2,4] [--seeds N] [--scale F] [--workers W]
@@ -31,7 +31,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from sapga_ros.cli.args import add_param, check_output_file, episode_steps, nonneg_int
+from sapga_ros.cli.args import (add_param, bench_steps, check_output_file, episode_steps,
+                                nonneg_int)
 from sapga_ros.cli.classical import add_classical_arguments, cmd_classical
 from sapga_ros.cli.experiment import (add_experiment_arguments, add_limit_arguments,
                                       cmd_experiment, cmd_limit)
@@ -96,6 +97,9 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument('--training', action='store_true',
                    help='instead: whole training runs, SAP-GA and Q-learning (alone and '
                         'seeds side by side), MDP steps/s (sapga_ros.bench.training)')
+    b.add_argument('--steps', type=bench_steps, default=2_000_000,
+                   help='with --training: MDP steps of each training run (default 2,000,000; '
+                        'the paper\'s SAP-GA runs take 30,000,000)')
 
     add_inspect_arguments(sub.add_parser(
         'inspect', help='summarise (and plot) a recording: a bag directory or an MCAP file'))
@@ -218,7 +222,7 @@ def cmd_bench(args) -> int:
 
 def _bench_training(args) -> int:
     from sapga_ros.bench.training import QL_ROWS, SAPGA_ROWS, run_training_bench
-    d = run_training_bench()
+    d = run_training_bench(args.steps)
     if args.json:
         print(dumps(d))
         return 0

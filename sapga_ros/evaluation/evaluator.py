@@ -10,6 +10,7 @@ policy on K disturbed episodes) is ``sapga_ros.evaluation.robust.RobustEvaluator
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -19,6 +20,7 @@ import numpy as np
 from sapga_ros.errors import SapgaError
 from sapga_ros.evaluation.engine import BLOCKS_PER_THREAD, evaluate_batch, run_share
 from sapga_ros.exemplars.distance import normalize_padded_into, normalize_states, pad_into
+from sapga_ros.policies.batch import PolicyBatch, flat_of
 from sapga_ros.policies.episode import Episode
 from sapga_ros.policies.exemplar import ExemplarPolicy
 from sapga_ros.policies.styles import STYLES
@@ -36,7 +38,7 @@ class BatchResult:
     steps: np.ndarray       # MDP steps simulated
     delta_star: np.ndarray  # min delta(s) over the states reached
     reached: np.ndarray     # ended in S_delta
-    used: list              # per policy: bool (L,), exemplars referred to
+    used: Sequence          # per policy: bool (L,), exemplars referred to
     delta_star_alt: np.ndarray | None = None  # delta* under the alternative goal reading
     first_entry: np.ndarray | None = None   # first step in S_delta, 0: never
     held: np.ndarray | None = None          # steps in S_delta from the first entry on
@@ -46,6 +48,22 @@ class BatchResult:
         """Policy k's hold measures (``hold_measures``)."""
         return hold_measures(int(self.first_entry[k]), int(self.held[k]), int(self.steps[k]),
                              int(self.contacts[k]))
+
+
+class RowMarks(Sequence):
+    """Per policy, the exemplars its episode referred to: row k of a padded (P, Lmax) mask,
+    its first lengths[k] entries, copied when asked for (a generation asks for few)."""
+
+    def __init__(self, marks: np.ndarray, lengths: np.ndarray) -> None:
+        self.marks, self.lengths = marks, lengths.tolist()
+
+    def __len__(self) -> int:
+        return len(self.lengths)
+
+    def __getitem__(self, k):
+        if isinstance(k, slice):
+            return [self[i] for i in range(*k.indices(len(self)))]
+        return self.marks[k, :self.lengths[k]].copy()
 
 
 def set_jobs(jobs: int | None) -> int:
@@ -91,7 +109,8 @@ class Evaluator:
     def controls(self, policies) -> np.ndarray:
         """(P, C) controller rows (``sapga_ros.evaluation.control``), zero-padded: a policy's
         own, else the evaluator's ``catch`` (None: no controller)."""
-        rows = [getattr(p, 'control', self.catch) for p in policies]
+        rows = [self.catch] * len(policies) if isinstance(policies, PolicyBatch) else \
+            [getattr(p, 'control', self.catch) for p in policies]   # a batch: none its own
         width = max([1] + [len(r) for r in rows if r is not None])
         ctl = np.zeros((len(policies), width))
         for k, r in enumerate(rows):
@@ -102,31 +121,35 @@ class Evaluator:
     def pack(self, policies: list[ExemplarPolicy]):
         """(style number, ex, ex2, act, val, lengths): padded (P, D, Lmax) normalised
         states, (P, D, Lmax or 1) second states, (P, Lmax) action values and values, (P,)
-        lengths."""
-        styles = {p.style for p in policies}
-        if len(styles) > 1:
-            raise SapgaError(f'one batch holds one exemplar style, got {sorted(styles)}')
-        style = STYLES[styles.pop() if styles else 'state-action']
-        count, dim = len(policies), self.problem.dim
-        lengths = np.fromiter((len(p.states) for p in policies), dtype=np.int64, count=count)
+        lengths.  A ``PolicyBatch`` is packed from its flat groups."""
+        if isinstance(policies, PolicyBatch):
+            groups = policies.groups()
+        else:
+            styles = {p.style for p in policies}
+            if len(styles) > 1:
+                raise SapgaError(f'one batch holds one exemplar style, got {sorted(styles)}')
+            groups = [flat_of(policies)] if policies else []
+        style = STYLES[groups[0].style if groups else 'state-action']
+        count, dim = sum(len(g) for g in groups), self.problem.dim
+        lengths = np.concatenate([g.lengths for g in groups]) if groups else \
+            np.zeros(0, dtype=np.int64)
         lmax = int(lengths.max()) if count else 1
         ex = np.zeros((count, dim, lmax))
         ex2 = np.zeros((count, dim, lmax if style.uses('state2') else 1))
         act = np.zeros((count, lmax))
         val = np.zeros((count, lmax))
-        if count == 0:
-            return style.number, ex, ex2, act, val, lengths
-        # Every policy's exemplars side by side, normalised into their padded slots in one
-        # compiled call: the same ``normalize_into`` per row as each policy alone.
+        # Each group's exemplars, normalised into their padded slots in one compiled call:
+        # the same ``normalize_into`` per row as each policy alone.
         inv = 1.0 / self.ranges
-        normalize_padded_into(np.concatenate([p.states for p in policies]), lengths, inv,
-                              self.is_angle, ex)
-        if style.uses('state2'):
-            normalize_padded_into(np.concatenate([p.states2 for p in policies]), lengths,
-                                  inv, self.is_angle, ex2)
-        pad_into(self.actions[np.concatenate([p.actions for p in policies])], lengths, act)
-        values = np.concatenate([p.values for p in policies]).astype(np.float64, copy=False)
-        pad_into(values, lengths, val)
+        start = 0
+        for g in groups:
+            rows = slice(start, start + len(g))
+            normalize_padded_into(g.states, g.lengths, inv, self.is_angle, ex[rows])
+            if style.uses('state2'):
+                normalize_padded_into(g.states2, g.lengths, inv, self.is_angle, ex2[rows])
+            pad_into(self.actions[g.actions], g.lengths, act[rows])
+            pad_into(g.values.astype(np.float64, copy=False), g.lengths, val[rows])
+            start += len(g)
         return style.number, ex, ex2, act, val, lengths
 
     def evaluate(self, policies: list[ExemplarPolicy],
@@ -142,14 +165,20 @@ class Evaluator:
         reached = np.zeros(count, dtype=np.bool_)
         used = np.zeros(act.shape, dtype=np.bool_)
         first, held, contacts = (np.zeros(count, dtype=np.int64) for _ in range(3))
+        draws = _held_keys(policies, keys, count)
         if count:
             shares = max(1, min(count, numba.get_num_threads() * BLOCKS_PER_THREAD))
             evaluate_batch(self.model, style, ex, ex2, act, val, lengths, *self._consts(),
-                           self.controls(policies), self.dist, _keys(keys, count), shares,
+                           self.controls(policies), self.dist, draws, shares,
                            returns, steps, dstar, dstar_alt, reached, used, first, held,
                            contacts)
-        return BatchResult(returns, steps, dstar, reached,
-                           [used[k, :n].copy() for k, n in enumerate(lengths)],
+        rows = getattr(policies, 'rows', None)
+        if rows is not None:            # a batch held in another order: back to its own
+            returns, steps, dstar, dstar_alt, reached, used, lengths, first, held, \
+                contacts = (a[rows] for a in (returns, steps, dstar, dstar_alt, reached, used,
+                                              lengths, first, held, contacts))
+        return BatchResult(returns, steps, dstar, reached, RowMarks(used, lengths) if count
+                           else [],
                            dstar_alt if len(self.alt_goal[0]) else None, first, held, contacts)
 
     def episode(self, policy: ExemplarPolicy, key: tuple = (0, 0, 0, 0)) -> Episode:
@@ -182,6 +211,17 @@ def run_policy_episode(policy: Any, delta: float, max_steps: int | None = None) 
     if isinstance(policy, ExemplarPolicy):
         return Evaluator(policy.problem, delta, max_steps).episode(policy)
     return policy.episode(delta, max_steps)
+
+
+def _held_keys(policies, keys, count: int) -> np.ndarray:
+    """``_keys``, each row at its policy's place in the batch's held order."""
+    out = _keys(keys, count)
+    rows = getattr(policies, 'rows', None)
+    if rows is None or keys is None:
+        return out
+    held = np.empty_like(out)
+    held[rows] = out
+    return held
 
 
 def _keys(keys, count: int) -> np.ndarray:

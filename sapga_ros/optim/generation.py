@@ -6,15 +6,19 @@ exemplar records compared bit for bit (as ``parents_union``).  ``children``: eve
 every family by uniform exemplar crossover (as ``uniform_crossover``); a child that needs
 repairing is handed back to the caller, which repairs it (``operators.repair``) and
 resumes.  ``refresh_draws``: the refresh operator's draws for every family's best member
-(as ``refresh``).  The passes draw from the run's generator itself: numba's Generator
-draws NumPy's sequence from the same bit generator (tests/test_generation.py checks the
-children, the clones and the generator's state against the operators one by one).
+(as ``refresh``).  The passes draw from the run's generator itself: the crossovers step
+its PCG64 state inline (``sapga_ros.optim.pcg``), the refresh pass through numba's
+Generator; both draw NumPy's sequence from the same bit generator (tests/test_generation.py
+checks the children, the clones and the generator's state against the operators one by one).
+``crossover_group`` hands the children back as one flat group (``FlatPolicies``).
 """
 from __future__ import annotations
 
 import numpy as np
 
 from sapga_ros.optim.operators import repair
+from sapga_ros.optim.pcg import pcg_double, set_state, state_of
+from sapga_ros.policies.batch import FlatPolicies, flat_of
 from sapga_ros.policies.exemplar import ExemplarPolicy, concat_policies
 from sapga_ros.policies.styles import STYLES
 from sim_nodes.jit import kernel
@@ -72,14 +76,31 @@ def _same(keys, i, j):
     return True
 
 
+@kernel(inline='always')
+def _take(st, uid, urep, mark, stamp, a, first, m, p, out_idx, write, count):
+    """One draw per exemplar first..first+m-1 of the family at ``a``: taken with probability
+    ``p`` unless its record is taken already (``mark``); the new ones appended to
+    out_idx[write + count:]; returns count.  Without branches on the draws (taken half the
+    time, at random, they were mispredicted): the row is always written, kept by count."""
+    for i in range(first, first + m):
+        j = uid[a + i]
+        new = (pcg_double(st) < p) & (mark[j] != stamp)
+        mark[j] = stamp if new else mark[j]
+        out_idx[write + count] = urep[a + j]
+        count += np.int64(new)
+    return count
+
+
 @kernel
-def children(rng, uid, urep, fam_start, n1, ucount, f, c, n_child, low, span, l_min, l_max,
+def children(st, uid, urep, fam_start, n1, ucount, f, c, n_child, low, span, l_min, l_max,
              max_tries, out_idx, out_start):
-    """Children (f, c) onwards (family-major) until done or a child to repair.  Child
+    """Children (f, c) onwards (family-major) until done or a child to repair, drawing
+    from the PCG64 state ``st`` (``pcg_double``).  Child
     k = f n_child + c is the rows out_idx[out_start[k]:out_start[k + 1]]; a child to
-    repair is left empty.  Each attempt draws what ``uniform_crossover``'s does: the rate,
-    then one double per exemplar of parent 1, then of parent 2.  Returns (f, c, DONE or
-    REPAIR: child (f, c), its attempts drawn)."""
+    repair is left empty; an attempt may write up to a union's size past its start
+    (``out_idx`` has that room after the last child).  Each attempt draws what
+    ``uniform_crossover``'s does: the rate, then one double per exemplar of parent 1, then
+    of parent 2.  Returns (f, c, DONE or REPAIR: child (f, c), its attempts drawn)."""
     mark = np.full(max(1, np.max(ucount)), -1)
     stamp = 0
     families = fam_start.shape[0] - 1
@@ -92,24 +113,11 @@ def children(rng, uid, urep, fam_start, n1, ucount, f, c, n_child, low, span, l_
             write = out_start[k]
             legal = False
             for _ in range(max_tries):
-                r = low + span * rng.random()          # as Generator.uniform(low, high)
+                r = low + span * pcg_double(st)        # as Generator.uniform(low, high)
                 stamp += 1
-                count = 0
-                for i in range(m1):                    # e in E^p1 with probability r
-                    if rng.random() < r:
-                        j = uid[a + i]
-                        if mark[j] != stamp:
-                            mark[j] = stamp
-                            out_idx[write + count] = urep[a + j]
-                            count += 1
-                other = 1.0 - r
-                for i in range(m2):                    # e in E^p2 with probability 1 - r
-                    if rng.random() < other:
-                        j = uid[a + m1 + i]
-                        if mark[j] != stamp:
-                            mark[j] = stamp
-                            out_idx[write + count] = urep[a + j]
-                            count += 1
+                count = _take(st, uid, urep, mark, stamp, a, 0, m1, r, out_idx, write, 0)
+                count = _take(st, uid, urep, mark, stamp, a, m1, m2, 1.0 - r, out_idx, write,
+                              count)                   # E^p1 with probability r, E^p2 1 - r
                 if l_min <= count <= l_max:
                     legal = True
                     break
@@ -143,6 +151,14 @@ def crossovers(parents: list[tuple[ExemplarPolicy, ExemplarPolicy]], rng: np.ran
     """The ``n_child`` children of each pair of ``parents`` (family by family), drawn from
     ``rng`` exactly as ``uniform_crossover`` would draw them one by one, and the number of
     children repaired."""
+    kids, repaired = crossover_group(parents, rng, n_child, l_min, l_max, rate, max_tries)
+    return [kids.policy(k) for k in range(len(kids))], repaired
+
+
+def crossover_group(parents: list[tuple[ExemplarPolicy, ExemplarPolicy]],
+                    rng: np.random.Generator, n_child: int, l_min: int, l_max: int,
+                    rate: tuple[float, float], max_tries: int) -> tuple[FlatPolicies, int]:
+    """``crossovers``' children as one flat group (family-major), and the number repaired."""
     first = parents[0][0]
     problem, style = first.problem, first.style
     flat = [p for pair in parents for p in pair]
@@ -166,27 +182,43 @@ def crossovers(parents: list[tuple[ExemplarPolicy, ExemplarPolicy]], rng: np.ran
     low, span = float(rate[0]), float(rate[1]) - float(rate[0])   # as Generator.uniform
     repaired: dict[int, ExemplarPolicy] = {}
     f = c = 0
+    words = state_of(rng)
     while f < len(parents):
-        f, c, status = children(rng, uid, urep, fam_start, n1, ucount, f, c, n_child, low,
+        f, c, status = children(words, uid, urep, fam_start, n1, ucount, f, c, n_child, low,
                                 span, l_min, l_max, max_tries, out_idx, out_start)
+        set_state(rng, words)
         if status == DONE:
             break
         a = fam_start[f]
         union = _subset(problem, style, states, states2, actions, values,
                         urep[a:a + ucount[f]])
         repaired[f * n_child + c] = repair(union, l_min, l_max, rng)
+        words = state_of(rng)
         c += 1
         if c == n_child:
             f, c = f + 1, 0
+    lengths = np.diff(out_start)
+    if repaired:                       # a repaired child's rows in its place (none drawn)
+        rows, cut = [], 0
+        parts: list = []
+        for k in sorted(repaired):
+            rows.append(out_idx[out_start[cut]:out_start[k]])
+            parts.append(repaired[k])
+            lengths[k] = len(repaired[k])
+            cut = k + 1
+        rows.append(out_idx[out_start[cut]:out_start[-1]])
+
+        def gather(source, field):
+            pieces = [source.take(rows[0], axis=0)]
+            for part, r in zip(parts, rows[1:]):
+                pieces += [getattr(part, field), source.take(r, axis=0)]
+            return np.concatenate(pieces)
+        return FlatPolicies(problem, style, gather(states, 'states'),
+                            gather(actions, 'actions'), gather(values, 'values'),
+                            gather(states2, 'states2'), lengths), len(repaired)
     rows = out_idx[:out_start[-1]]
-    kid_states, kid_states2 = states.take(rows, axis=0), states2.take(rows, axis=0)
-    kid_actions, kid_values = actions.take(rows), values.take(rows)   # take: faster
-    bounds = out_start.tolist()
-    out = [repaired[k] if k in repaired else ExemplarPolicy.of_valid(
-        problem, kid_states[bounds[k]:bounds[k + 1]], kid_actions[bounds[k]:bounds[k + 1]],
-        style, kid_values[bounds[k]:bounds[k + 1]], kid_states2[bounds[k]:bounds[k + 1]])
-        for k in range(kids)]
-    return out, len(repaired)
+    return FlatPolicies(problem, style, states.take(rows, axis=0), actions.take(rows),
+                        values.take(rows), states2.take(rows, axis=0), lengths), 0
 
 
 def _subset(problem, style, states, states2, actions, values, rows) -> ExemplarPolicy:
@@ -263,22 +295,11 @@ def refreshes(stars: list, rng: np.random.Generator,
                   len(problem.actions), value_low, value_high, uses, redraw, counts,
                   fresh_states, fresh_states2, fresh_actions, fresh_values)
     drawn = int(counts.sum())
-    fresh_states = first._wrapped(fresh_states[:drawn])
-    fresh_states2 = first._wrapped(fresh_states2[:drawn]) if uses[0] else None
-    out = []
-    a = w = 0
-    for star, n, count in zip(stars, lengths.tolist(), counts.tolist()):
-        p = star.policy
-        clone = ExemplarPolicy.of_valid(problem, p.states.copy(), p.actions.copy(), style,
-                                        p.values.copy(), p.states2.copy())
-        if count:
-            mask = redraw[a:a + n]
-            clone.states[mask] = fresh_states[w:w + count]
-            if fresh_states2 is not None:
-                clone.states2[mask] = fresh_states2[w:w + count]
-            clone.actions[mask] = fresh_actions[w:w + count]
-            clone.values[mask] = fresh_values[w:w + count]
-        out.append((clone, count))
-        a += n
-        w += count
-    return out
+    clones = flat_of([s.policy for s in stars])          # copies, in star order
+    if drawn:                  # the fresh records, in order, into the exemplars re-drawn
+        clones.states[redraw] = first._wrapped(fresh_states[:drawn])
+        if uses[0]:
+            clones.states2[redraw] = first._wrapped(fresh_states2[:drawn])
+        clones.actions[redraw] = fresh_actions[:drawn]
+        clones.values[redraw] = fresh_values[:drawn]
+    return [(clones.policy(k), count) for k, count in enumerate(counts.tolist())]

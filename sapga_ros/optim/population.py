@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sapga_ros.errors import CheckpointError, SapgaError
+from sapga_ros.policies.batch import FlatPolicies
 from sapga_ros.policies.exemplar import ExemplarPolicy
 from sim_nodes.problem import Problem
 
@@ -32,6 +33,70 @@ class Individual:
     @property
     def known(self) -> bool:
         return not math.isnan(self.value)
+
+
+class Generation:
+    """A SAP-GA generation between ``ask`` and ``tell``: each family's parents (individuals),
+    every child as one flat group (family-major) with its catch scale, and the parents
+    without a known value (``waiting``).  The members to evaluate, in family order (each
+    family's waiting parents, then its children), are held as the waiting parents followed
+    by the children: member s at ``rows[s]``.  A child becomes an ``Individual`` only when
+    one is asked for (a family's best, the run's best), the same object each time; one asked
+    for before the results gets them when they come."""
+
+    def __init__(self, couples: list[tuple[int, int]], parents: list[tuple[Individual,
+                 Individual]], kids: FlatPolicies, scales: list[float], n_child: int) -> None:
+        self.couples, self.parents, self.kids = couples, parents, kids
+        self.scales, self.n_child = scales, n_child
+        self.waiting = [m for pair in parents for m in pair if not m.known]
+        held = {id(m): p for p, m in enumerate(self.waiting)}
+        base = len(self.waiting)
+        rows: list[int] = []
+        for f, pair in enumerate(parents):
+            rows += [held[id(m)] for m in pair if id(m) in held]
+            rows += range(base + f * n_child, base + (f + 1) * n_child)
+        self.rows = np.array(rows, dtype=np.int64)
+        self.place = np.empty_like(self.rows)        # held position -> member position
+        self.place[self.rows] = np.arange(len(rows))
+        self.made: dict[int, Individual] = {}
+        self.results: tuple | None = None
+
+    def __len__(self) -> int:
+        return len(self.rows)
+
+    def child(self, k: int) -> Individual:
+        """Child k (family-major), the same object each time."""
+        m = self.made.get(k)
+        if m is None:
+            m = self.made[k] = Individual(self.kids.policy(k), scale=self.scales[k])
+            if self.results is not None:
+                self._fill(m, int(self.place[len(self.waiting) + k]))
+        return m
+
+    def member(self, s: int) -> Individual:
+        """Member s in family order."""
+        r, held = int(self.rows[s]), len(self.waiting)
+        return self.waiting[r] if r < held else self.child(r - held)
+
+    def take(self, values: np.ndarray, dstar: np.ndarray, steps: np.ndarray,
+             reached: np.ndarray, used) -> None:
+        """The members' results (in family order) to the waiting parents and every child
+        made."""
+        self.results = (values, dstar, steps, reached, used)
+        place = self.place.tolist()
+        for p, m in enumerate(self.waiting):
+            self._fill(m, place[p])
+        for k, m in self.made.items():
+            self._fill(m, place[len(self.waiting) + k])
+
+    def child_values(self, values: np.ndarray) -> np.ndarray:
+        """(families, n_child): ``values`` (family order) of each family's children."""
+        return values[self.place[len(self.waiting):]].reshape(-1, self.n_child)
+
+    def _fill(self, m: Individual, s: int) -> None:
+        values, dstar, steps, reached, used = self.results
+        m.value, m.delta_star = float(values[s]), float(dstar[s])
+        m.steps, m.reached, m.used = int(steps[s]), bool(reached[s]), used[s]
 
 
 SCALE_RANGE = (1 / 64, 16.0)               # an evolved catch scale stays inside this

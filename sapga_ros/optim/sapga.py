@@ -32,9 +32,10 @@ from sapga_ros.errors import CheckpointError, ConfigError
 from sapga_ros.policies.exemplar import ExemplarPolicy
 from sapga_ros.policies.styles import STYLES
 from sapga_ros.optim.base import Optimizer, Result, State
-from sapga_ros.optim.generation import compact, crossovers, refreshes
+from sapga_ros.optim.generation import compact, crossover_group, refreshes
 from sapga_ros.optim.operators import random_policy
-from sapga_ros.optim.population import SCALE_RANGE, Individual, pack, unpack
+from sapga_ros.optim.population import SCALE_RANGE, Generation, Individual, pack, unpack
+from sapga_ros.policies.batch import PolicyBatch
 from sapga_ros.policies.classical import ControlledPolicy, hybrid_of_valid
 from sim_nodes.params import check, param
 from sim_nodes.problem import Problem
@@ -118,8 +119,7 @@ class SapGA(Optimizer):
     population: list[Individual]
     stats: Stats = field(default_factory=Stats)
     best: Individual | None = None         # the best evaluated member so far
-    _families: list | None = None
-    _pending: list | None = None
+    _gen: 'Generation | None' = field(default=None, repr=False)   # between ask and tell
     catch: ControlledPolicy | None = None  # the design's catch, when its region evolves
     catch_sigma: float = 0.0               # log-normal mutation size of the catch scale
     catch_rng: np.random.Generator | None = None   # draws of the catch scales only
@@ -151,8 +151,9 @@ class SapGA(Optimizer):
         return cls(problem, params, rng, pop)
 
     def ask(self) -> list[ExemplarPolicy]:
-        """Form this generation's families; return the members that need an evaluation."""
-        if self._families is not None:
+        """Form this generation's families; return the members that need an evaluation: the
+        parents without a known value (family by family), then every child (family-major)."""
+        if self._gen is not None:
             raise RuntimeError('ask() called twice without tell()')
         p = self.params
         order = self.rng.permutation(p.n_pop).tolist()            # random couples
@@ -161,24 +162,33 @@ class SapGA(Optimizer):
             for m in pop:
                 m.value = math.nan
         couples = [(order[2 * f], order[2 * f + 1]) for f in range(p.n_pop // 2)]
-        kids, repaired = crossovers([(pop[i].policy, pop[j].policy) for i, j in couples],
-                                    self.rng, p.n_child, p.l_min, p.l_max, p.crossover_rate,
-                                    p.max_tries)                  # = uniform_crossover each
+        kids, repaired = crossover_group([(pop[i].policy, pop[j].policy) for i, j in couples],
+                                         self.rng, p.n_child, p.l_min, p.l_max,
+                                         p.crossover_rate, p.max_tries)  # = uniform_crossover
         self.stats.repairs += repaired
-        scales = self._child_scales(couples)
-        families = []
-        pending = []
-        for f, (i, j) in enumerate(couples):
-            members = [pop[i], pop[j]]
-            members.extend(Individual(kid, scale=scale) for kid, scale in zip(
-                kids[f * p.n_child:(f + 1) * p.n_child],
-                scales[f * p.n_child:(f + 1) * p.n_child]))
-            pending.extend(m for m in members if not m.known)
-            families.append((i, j, members))
-        self._families, self._pending = families, pending
+        gen = Generation(couples, [(pop[i], pop[j]) for i, j in couples], kids,
+                         self._child_scales(couples), p.n_child)
+        self._gen = gen
+        batch = PolicyBatch([m.policy for m in gen.waiting], kids, gen.rows)
         if self.catch is not None:
-            return [hybrid_of_valid(m.policy, self.catch, m.scale) for m in pending]
-        return [m.policy for m in pending]
+            held = [m.scale for m in gen.waiting] + gen.scales
+            return [hybrid_of_valid(policy, self.catch, held[r])
+                    for policy, r in zip(batch, gen.rows.tolist())]
+        return batch
+
+    @property
+    def _families(self) -> list | None:
+        """This generation's families (i, j, [parent i, parent j, children...])."""
+        g = self._gen
+        return None if g is None else [
+            (i, j, [a, b] + [g.child(f * g.n_child + c) for c in range(g.n_child)])
+            for f, ((i, j), (a, b)) in enumerate(zip(g.couples, g.parents))]
+
+    @property
+    def _pending(self) -> list | None:
+        """The members ``ask`` returned, in its order (family by family)."""
+        g = self._gen
+        return None if g is None else [g.member(s) for s in range(len(g))]
 
     def _child_scales(self, couples: list[tuple[int, int]]) -> list[float]:
         """Each child's catch scale, family by family: one parent's (a fair coin), mutated
@@ -197,39 +207,33 @@ class SapGA(Optimizer):
     def tell(self, returns: np.ndarray, delta_star: np.ndarray, steps: np.ndarray,
              reached: np.ndarray, used: list[np.ndarray]) -> None:
         """Take the evaluations of ``ask()``'s policies, in order; replace the parents."""
-        if self._families is None or not \
+        g = self._gen
+        if g is None or not \
                 len(returns) == len(delta_star) == len(steps) == len(reached) == len(used) \
-                == len(self._pending):
+                == len(g):
             raise RuntimeError('tell() needs the results of the last ask(), in order')
         st = self.stats
         values = np.asarray(returns, dtype=float)
         values = np.where(np.isfinite(values), values, -math.inf)    # NaN ranks worst
         dstar = np.asarray(delta_star, dtype=float)
         steps = np.asarray(steps).astype(np.int64, copy=False)
-        for m, value, d, n, hit, marks in zip(self._pending, values.tolist(), dstar.tolist(),
-                                              steps.tolist(), np.asarray(reached).tolist(),
-                                              used):
-            m.value, m.delta_star, m.steps, m.reached, m.used = value, d, n, bool(hit), marks
+        g.take(values, dstar, steps, np.asarray(reached), used)
         if len(values):
             # As taking the members one by one: NaN delta* never lowers the run's, and the
-            # best is the first member of highest rank, if it ranks above the best so far.
+            # best is the first member (in family order) of highest rank, if it ranks above
+            # the best so far.
             st.steps += int(steps.sum())
             st.evaluations += len(values)
             seen = dstar[~np.isnan(dstar)]
             if len(seen):
                 st.delta_star = min(st.delta_star, float(seen.min()))
             st.best_value = max(st.best_value, float(values.max()))
-            first = self._pending[self._first_best(values, dstar)]
+            first = g.member(self._first_best(values, dstar))
             if self.best is None or self.redraw or self._rank(first) > self._rank(self.best):
                 self.best = first
-        rank = self._rank
-        stars = []
-        for i, j, members in self._families:
-            if self.params.variant in ('child-ties', 'dstar-child'):
-                members = members[2:] + members[:2]               # children first
-            stars.append(max(members, key=rank))                  # pi*, first of equals
+        stars = self._stars(g, values, dstar)
         clones = refreshes(stars, self.rng, self.params.refresh_rate)  # = refresh each
-        for (i, j, _), star, (clone, count) in zip(self._families, stars, clones):
+        for (i, j), star, (clone, count) in zip(g.couples, stars, clones):
             st.refreshed += count
             twin = Individual(clone, scale=star.scale)
             if count == 0:                                        # unchanged: value known
@@ -239,7 +243,44 @@ class SapGA(Optimizer):
             self.population[i] = star
             self.population[j] = twin
         st.generation += 1
-        self._families = self._pending = None
+        self._gen = None
+
+    def _stars(self, g: 'Generation', values: np.ndarray, dstar: np.ndarray) -> list:
+        """Each family's best member pi* (``_rank``; the first of equals in the order parent
+        i, parent j, children, or children first for the *-child variants)."""
+        n = g.n_child
+        children_first = self.params.variant in ('child-ties', 'dstar-child')
+        rank = self._rank
+        if self.params.variant in ('dstar', 'dstar-child'):
+            near = g.child_values(np.where(np.isnan(dstar), -math.inf, -dstar)).ravel().tolist()
+            vals = g.child_values(values).ravel().tolist()
+            keys = list(zip(near, vals))
+            best_k = []
+            for f in range(len(g.couples)):
+                k = f * n
+                for c in range(f * n + 1, (f + 1) * n):
+                    if keys[c] > keys[k]:
+                        k = c
+                best_k.append(k)
+            best_key = [keys[k] for k in best_k]
+        else:
+            table = g.child_values(values)
+            best_k = (table.argmax(axis=1) + np.arange(0, len(table) * n, n)).tolist()
+            best_key = table.max(axis=1).tolist()
+        stars = []
+        for f, (a, b) in enumerate(g.parents):
+            if children_first:                    # as max over (children..., a, b)
+                star, key = None, best_key[f]
+                for m in (a, b):
+                    if rank(m) > key:
+                        star, key = m, rank(m)
+            else:                                 # as max over (a, b, children...)
+                star = b if rank(b) > rank(a) else a
+                key = rank(star)
+                if best_key[f] > key:
+                    star = None
+            stars.append(g.child(best_k[f]) if star is None else star)
+        return stars
 
     def _first_best(self, values: np.ndarray, dstar: np.ndarray) -> int:
         """Index of the first entry of highest ``_rank`` (values already NaN-free)."""

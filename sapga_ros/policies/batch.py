@@ -1,0 +1,88 @@
+"""Exemplar policies held side by side as flat arrays, and a batch made of such groups.
+
+A SAP-GA generation makes some 500 children; making each one an ``ExemplarPolicy`` object
+and concatenating their arrays again to evaluate them cost more than a tenth of a run's time
+around the batch kernel.  ``FlatPolicies`` keeps a group's exemplar records concatenated
+(policy k is rows ``bounds[k]:bounds[k + 1]``) and makes a policy object only when one is
+asked for (a view into the arrays).  ``PolicyBatch`` is a sequence of policies (held as some policy
+objects and a flat group, in any order) that the evaluator packs group by group, without a
+policy object per member.
+"""
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from sapga_ros.policies.exemplar import ExemplarPolicy
+from sim_nodes.problem import Problem
+
+
+@dataclass
+class FlatPolicies:
+    """Policies of one problem and style, their records concatenated in policy order."""
+
+    problem: Problem
+    style: str
+    states: np.ndarray          # (N, D) float64, angles wrapped
+    actions: np.ndarray         # (N,) action indices
+    values: np.ndarray          # (N,) float64
+    states2: np.ndarray         # (N, D) (state-state) or (N, 0)
+    lengths: np.ndarray         # (count,) int64 exemplars of each policy
+
+    def __post_init__(self) -> None:
+        self._bounds = [0] + np.cumsum(self.lengths).tolist()
+
+    def __len__(self) -> int:
+        return len(self.lengths)
+
+    def policy(self, k: int) -> ExemplarPolicy:
+        """Policy k, its arrays views into the group's."""
+        a, b = self._bounds[k], self._bounds[k + 1]
+        return ExemplarPolicy.of_valid(self.problem, self.states[a:b], self.actions[a:b],
+                                       self.style, self.values[a:b], self.states2[a:b])
+
+
+def flat_of(policies: list[ExemplarPolicy]) -> FlatPolicies:
+    """``policies`` (one problem and style, at least one) as a flat group (copies)."""
+    first = policies[0]
+    return FlatPolicies(first.problem, first.style,
+                        np.concatenate([p.states for p in policies]),
+                        np.concatenate([p.actions for p in policies]),
+                        np.concatenate([p.values for p in policies]),
+                        np.concatenate([p.states2 for p in policies]),
+                        np.fromiter((len(p.states) for p in policies), dtype=np.int64,
+                                    count=len(policies)))
+
+
+class PolicyBatch(Sequence):
+    """A sequence of policies held as ``policies`` (objects) followed by the policies of
+    ``group`` (flat): position s of the sequence is held at ``rows[s]`` of that order (None:
+    in it).  ``groups()`` gives the evaluator the held order as flat groups; the evaluator
+    returns its results in the sequence's order."""
+
+    def __init__(self, policies: list[ExemplarPolicy], group: FlatPolicies,
+                 rows: np.ndarray | None = None) -> None:
+        self.policies, self.group, self.rows = policies, group, rows
+        self.style = group.style
+        self._rows = None if rows is None else rows.tolist()
+
+    def __len__(self) -> int:
+        return len(self.policies) + len(self.group)
+
+    def __getitem__(self, index):
+        if isinstance(index, slice):
+            return [self[i] for i in range(*index.indices(len(self)))]
+        count = len(self)
+        if not -count <= index < count:
+            raise IndexError(index)
+        index %= count
+        if self._rows is not None:
+            index = self._rows[index]
+        held = len(self.policies)
+        return self.policies[index] if index < held else self.group.policy(index - held)
+
+    def groups(self) -> list[FlatPolicies]:
+        """The batch in its held order as flat groups."""
+        return ([flat_of(self.policies)] if self.policies else []) + [self.group]
