@@ -218,7 +218,8 @@ def crossover_group(parents: list[tuple[ExemplarPolicy, ExemplarPolicy]],
                             gather(states2, 'states2'), lengths), len(repaired)
     rows = out_idx[:out_start[-1]]
     return FlatPolicies(problem, style, states.take(rows, axis=0), actions.take(rows),
-                        values.take(rows), states2.take(rows, axis=0), lengths), 0
+                        values.take(rows), states2.take(rows, axis=0) if states2.shape[1]
+                        else np.zeros((len(rows), 0)), lengths), 0
 
 
 def _subset(problem, style, states, states2, actions, values, rows) -> ExemplarPolicy:
