@@ -227,3 +227,30 @@ def test_set_jobs_clamps_to_the_available_threads(restore_threads):
     assert set_jobs(None) == n and set_jobs(0) == n and set_jobs(n + 5) == n
     assert numba.get_num_threads() == n
     assert set_jobs(1) == 1 and numba.get_num_threads() == 1
+
+
+@pytest.mark.parametrize('disturbance', ['none', 'field'])
+def test_a_policy_batch_held_in_another_order_gives_the_lists_results(population,
+                                                                      disturbance):
+    """A ``PolicyBatch`` (some policy objects, then a flat group, held in an order of its
+    own) evaluates to the results of the plain list of the same policies in the batch's
+    order, bit for bit, disturbed draws and used marks included."""
+    from sapga_ros.policies.batch import PolicyBatch, flat_of
+    from sim_nodes.disturbance import load_disturbance
+    base, policies, _ = population
+    evaluator = Evaluator(base.problem, base.delta, disturbance=load_disturbance(disturbance))
+    held = np.random.default_rng(3).permutation(len(policies))   # held order -> policy
+    objects, group = [policies[k] for k in held[:6]], flat_of([policies[k] for k in held[6:]])
+    rows = np.empty_like(held)
+    rows[held] = np.arange(len(held))                            # policy -> held position
+    batch = PolicyBatch(objects, group, rows)
+    assert len(batch) == len(policies)
+    assert all(np.array_equal(batch[k].states, p.states) for k, p in enumerate(policies))
+    keys = np.zeros((len(policies), 4), dtype=np.int64)
+    keys[:, 0], keys[:, 2] = 5, np.arange(len(policies))          # a draw of its own each
+    got, want = evaluator.evaluate(batch, keys), evaluator.evaluate(policies, keys)
+    assert_same_results(got, want)
+    assert np.array_equal(got.first_entry, want.first_entry)
+    assert np.array_equal(got.contacts, want.contacts)
+    if disturbance == 'field':      # the draws differ by policy, so an order mix-up shows
+        assert len(set(want.returns.tolist())) > len(policies) // 2
