@@ -151,8 +151,9 @@ class SapGA(Optimizer):
         return cls(problem, params, rng, pop)
 
     def ask(self) -> list[ExemplarPolicy]:
-        """Form this generation's families; return the members that need an evaluation: the
-        parents without a known value (family by family), then every child (family-major)."""
+        """Form this generation's families; return the members that need an evaluation,
+        family by family (its parents without a known value, then its children): a
+        ``PolicyBatch`` (with an evolved catch, a list of hybrid policies)."""
         if self._gen is not None:
             raise RuntimeError('ask() called twice without tell()')
         p = self.params
