@@ -19,7 +19,8 @@ import numpy as np
 
 from sapga_ros.errors import SapgaError
 from sapga_ros.evaluation.engine import BLOCKS_PER_THREAD, evaluate_batch, run_share
-from sapga_ros.exemplars.distance import normalize_padded_into, normalize_states, pad_into
+from sapga_ros.exemplars.distance import (normalize_padded_into, normalize_rows_padded_into,
+                                          normalize_states, pad_into, pad_rows_into)
 from sapga_ros.policies.batch import PolicyBatch, flat_of
 from sapga_ros.policies.episode import Episode
 from sapga_ros.policies.exemplar import ExemplarPolicy
@@ -143,12 +144,22 @@ class Evaluator:
         inv = 1.0 / self.ranges
         start = 0
         for g in groups:
-            rows = slice(start, start + len(g))
-            normalize_padded_into(g.states, g.lengths, inv, self.is_angle, ex[rows])
-            if style.uses('state2'):
-                normalize_padded_into(g.states2, g.lengths, inv, self.is_angle, ex2[rows])
-            pad_into(self.actions[g.actions], g.lengths, act[rows])
-            pad_into(g.values.astype(np.float64, copy=False), g.lengths, val[rows])
+            at = slice(start, start + len(g))
+            values = g.values.astype(np.float64, copy=False)
+            if g.rows is None:
+                normalize_padded_into(g.states, g.lengths, inv, self.is_angle, ex[at])
+                if style.uses('state2'):
+                    normalize_padded_into(g.states2, g.lengths, inv, self.is_angle, ex2[at])
+                pad_into(self.actions[g.actions], g.lengths, act[at])
+                pad_into(values, g.lengths, val[at])
+            else:                       # records picked by rows: the same per row
+                normalize_rows_padded_into(g.states, g.rows, g.lengths, inv, self.is_angle,
+                                           ex[at])
+                if style.uses('state2'):
+                    normalize_rows_padded_into(g.states2, g.rows, g.lengths, inv,
+                                               self.is_angle, ex2[at])
+                pad_rows_into(self.actions[g.actions], g.rows, g.lengths, act[at])
+                pad_rows_into(values, g.rows, g.lengths, val[at])
             start += len(g)
         return style.number, ex, ex2, act, val, lengths
 

@@ -143,6 +143,26 @@ def normalize_padded_into(states, lengths, inv_range, is_angle, out):
 
 
 @kernel
+def normalize_rows_padded_into(states, rows, lengths, inv_range, is_angle, out):
+    """``normalize_padded_into`` of states[rows] (policy k: the next lengths[k] rows)."""
+    start = 0
+    for k in range(lengths.shape[0]):
+        for j in range(lengths[k]):
+            normalize_into(states[rows[start + j]], inv_range, is_angle, out[k, :, j])
+        start += lengths[k]
+
+
+@kernel
+def pad_rows_into(flat, rows, lengths, out):
+    """``pad_into`` of flat[rows]."""
+    start = 0
+    for k in range(lengths.shape[0]):
+        for j in range(lengths[k]):
+            out[k, j] = flat[rows[start + j]]
+        start += lengths[k]
+
+
+@kernel
 def pad_into(flat, lengths, out):
     """Policies' per-exemplar values side by side -> out[k, j] = policy k's value j."""
     start = 0

@@ -198,28 +198,25 @@ def crossover_group(parents: list[tuple[ExemplarPolicy, ExemplarPolicy]],
         if c == n_child:
             f, c = f + 1, 0
     lengths = np.diff(out_start)
-    if repaired:                       # a repaired child's rows in its place (none drawn)
-        rows, cut = [], 0
-        parts: list = []
-        for k in sorted(repaired):
-            rows.append(out_idx[out_start[cut]:out_start[k]])
-            parts.append(repaired[k])
-            lengths[k] = len(repaired[k])
-            cut = k + 1
-        rows.append(out_idx[out_start[cut]:out_start[-1]])
-
-        def gather(source, field):
-            pieces = [source.take(rows[0], axis=0)]
-            for part, r in zip(parts, rows[1:]):
-                pieces += [getattr(part, field), source.take(r, axis=0)]
-            return np.concatenate(pieces)
-        return FlatPolicies(problem, style, gather(states, 'states'),
-                            gather(actions, 'actions'), gather(values, 'values'),
-                            gather(states2, 'states2'), lengths), len(repaired)
     rows = out_idx[:out_start[-1]]
-    return FlatPolicies(problem, style, states.take(rows, axis=0), actions.take(rows),
-                        values.take(rows), states2.take(rows, axis=0) if states2.shape[1]
-                        else np.zeros((len(rows), 0)), lengths), 0
+    if repaired:           # a repaired child's records appended, its rows in its place
+        parts, cuts, end = [], [], total
+        for k in sorted(repaired):
+            lengths[k] = len(repaired[k])
+            parts.append(repaired[k])
+            cuts.append((out_start[k], np.arange(end, end + lengths[k])))
+            end += lengths[k]
+        pieces, at = [], 0
+        for cut, fresh in cuts:
+            pieces += [rows[at:cut], fresh]
+            at = cut
+        rows = np.concatenate(pieces + [rows[at:]])
+        states, actions, values, states2 = (
+            np.concatenate([source] + [getattr(part, name) for part in parts])
+            for source, name in ((states, 'states'), (actions, 'actions'),
+                                 (values, 'values'), (states2, 'states2')))
+    return FlatPolicies(problem, style, states, actions, values, states2, lengths,
+                        np.ascontiguousarray(rows)), len(repaired)
 
 
 def _subset(problem, style, states, states2, actions, values, rows) -> ExemplarPolicy:

@@ -48,16 +48,13 @@ class Generation:
                  Individual]], kids: FlatPolicies, scales: list[float], n_child: int) -> None:
         self.couples, self.parents, self.kids = couples, parents, kids
         self.scales, self.n_child = scales, n_child
-        self.waiting = [m for pair in parents for m in pair if not m.known]
-        held = {id(m): p for p, m in enumerate(self.waiting)}
-        base = len(self.waiting)
-        rows: list[int] = []
-        for f, pair in enumerate(parents):
-            rows += [held[id(m)] for m in pair if id(m) in held]
-            rows += range(base + f * n_child, base + (f + 1) * n_child)
-        self.rows = np.array(rows, dtype=np.int64)
+        waiting = [(f, m) for f, pair in enumerate(parents) for m in pair if not m.known]
+        self.waiting = [m for _, m in waiting]
+        family = np.concatenate([np.array([f for f, _ in waiting], dtype=np.int64),
+                                 np.repeat(np.arange(len(parents)), n_child)])
+        self.rows = np.argsort(family, kind='stable')    # held in family order
         self.place = np.empty_like(self.rows)        # held position -> member position
-        self.place[self.rows] = np.arange(len(rows))
+        self.place[self.rows] = np.arange(len(self.rows))
         self.made: dict[int, Individual] = {}
         self.results: tuple | None = None
 

@@ -21,7 +21,9 @@ from sim_nodes.problem import Problem
 
 @dataclass
 class FlatPolicies:
-    """Policies of one problem and style, their records concatenated in policy order."""
+    """Policies of one problem and style, their records concatenated in policy order, or,
+    with ``rows``, the records rows[...] of the arrays (a generation's children are rows of
+    their parents' records: nothing is copied until a child is asked for)."""
 
     problem: Problem
     style: str
@@ -30,6 +32,7 @@ class FlatPolicies:
     values: np.ndarray          # (N,) float64
     states2: np.ndarray         # (N, D) (state-state) or (N, 0)
     lengths: np.ndarray         # (count,) int64 exemplars of each policy
+    rows: np.ndarray | None = None   # (sum of lengths,) int64: the records, in order
 
     def __post_init__(self) -> None:
         self._bounds = [0] + np.cumsum(self.lengths).tolist()
@@ -38,10 +41,16 @@ class FlatPolicies:
         return len(self.lengths)
 
     def policy(self, k: int) -> ExemplarPolicy:
-        """Policy k, its arrays views into the group's."""
+        """Policy k: its arrays views into the group's, or copies of its rows."""
         a, b = self._bounds[k], self._bounds[k + 1]
-        return ExemplarPolicy.of_valid(self.problem, self.states[a:b], self.actions[a:b],
-                                       self.style, self.values[a:b], self.states2[a:b])
+        if self.rows is None:
+            return ExemplarPolicy.of_valid(self.problem, self.states[a:b], self.actions[a:b],
+                                           self.style, self.values[a:b], self.states2[a:b])
+        rows = self.rows[a:b]
+        return ExemplarPolicy.of_valid(
+            self.problem, self.states.take(rows, axis=0), self.actions.take(rows), self.style,
+            self.values.take(rows), self.states2.take(rows, axis=0) if self.states2.shape[1]
+            else np.zeros((b - a, 0)))
 
 
 def flat_of(policies: list[ExemplarPolicy]) -> FlatPolicies:
