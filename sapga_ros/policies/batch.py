@@ -3,10 +3,11 @@
 A SAP-GA generation makes some 500 children; making each one an ``ExemplarPolicy`` object
 and concatenating their arrays again to evaluate them cost more than a tenth of a run's time
 around the batch kernel.  ``FlatPolicies`` keeps a group's exemplar records concatenated
-(policy k is rows ``bounds[k]:bounds[k + 1]``) and makes a policy object only when one is
-asked for (a view into the arrays).  ``PolicyBatch`` is a sequence of policies (held as some policy
-objects and a flat group, in any order) that the evaluator packs group by group, without a
-policy object per member.
+(policy k is rows ``bounds[k]:bounds[k + 1]``), or the rows each policy takes of arrays
+held once (a child's of its parents' records), and makes a policy object only when one is
+asked for.  ``PolicyBatch`` is a sequence of policies (held as some policy objects and a
+flat group, in any order) that the evaluator packs group by group, without a policy object
+per member.
 """
 from __future__ import annotations
 
