@@ -230,17 +230,25 @@ def test_set_jobs_clamps_to_the_available_threads(restore_threads):
 
 
 @pytest.mark.parametrize('disturbance', ['none', 'field'])
+@pytest.mark.parametrize('held_as', ['copies', 'rows'])
 def test_a_policy_batch_held_in_another_order_gives_the_lists_results(population,
-                                                                      disturbance):
+                                                                      disturbance, held_as):
     """A ``PolicyBatch`` (some policy objects, then a flat group, held in an order of its
-    own) evaluates to the results of the plain list of the same policies in the batch's
-    order, bit for bit, disturbed draws and used marks included."""
-    from sapga_ros.policies.batch import PolicyBatch, flat_of
+    own; the group's records copied side by side or picked by rows from other arrays)
+    evaluates to the results of the plain list of the same policies in the batch's order,
+    bit for bit, disturbed draws and used marks included."""
+    from sapga_ros.policies.batch import FlatPolicies, PolicyBatch, flat_of
     from sim_nodes.disturbance import load_disturbance
     base, policies, _ = population
     evaluator = Evaluator(base.problem, base.delta, disturbance=load_disturbance(disturbance))
     held = np.random.default_rng(3).permutation(len(policies))   # held order -> policy
     objects, group = [policies[k] for k in held[:6]], flat_of([policies[k] for k in held[6:]])
+    if held_as == 'rows':          # the same records, reversed in the arrays, picked by rows
+        n = len(group.states)
+        group = FlatPolicies(group.problem, group.style, group.states[::-1].copy(),
+                             group.actions[::-1].copy(), group.values[::-1].copy(),
+                             group.states2[::-1].copy(), group.lengths,
+                             np.arange(n - 1, -1, -1))
     rows = np.empty_like(held)
     rows[held] = np.arange(len(held))                            # policy -> held position
     batch = PolicyBatch(objects, group, rows)
