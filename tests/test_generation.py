@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from sapga_ros.errors import SapgaError
-from sapga_ros.optim.generation import crossovers, refreshes
+from sapga_ros.optim.generation import crossover_group, refreshes
 from sapga_ros.optim.pcg import pcg_doubles, set_state, state_of
 from sapga_ros.optim.operators import (parents_union, random_policy, refresh,
                                        uniform_crossover)
@@ -52,7 +52,9 @@ def test_crossovers_draw_for_draw_as_one_by_one(style, limits):
     fast_rng.integers(0, 5, size=3)                    # a buffered 32-bit half pending
     slow_rng.integers(0, 5, size=3)
     assert fast_rng.bit_generator.state['has_uint32'] == 1
-    fast, fast_repairs = crossovers(parents, fast_rng, 7, l_min, l_max, (0.3, 0.7), tries)
+    group, fast_repairs = crossover_group(parents, fast_rng, 7, l_min, l_max, (0.3, 0.7),
+                                          tries)
+    fast = [group.policy(k) for k in range(len(group))]
     slow, slow_repairs = one_by_one(parents, slow_rng, 7, l_min, l_max, (0.3, 0.7), tries)
     assert fast_repairs == slow_repairs
     assert len(fast) == len(slow)

@@ -145,20 +145,12 @@ def record_keys(states, states2, actions, values, style: str) -> np.ndarray:
     return np.ascontiguousarray(np.concatenate(cols, axis=1))
 
 
-def crossovers(parents: list[tuple[ExemplarPolicy, ExemplarPolicy]], rng: np.random.Generator,
-               n_child: int, l_min: int, l_max: int, rate: tuple[float, float],
-               max_tries: int) -> tuple[list[ExemplarPolicy], int]:
-    """The ``n_child`` children of each pair of ``parents`` (family by family), drawn from
-    ``rng`` exactly as ``uniform_crossover`` would draw them one by one, and the number of
-    children repaired."""
-    kids, repaired = crossover_group(parents, rng, n_child, l_min, l_max, rate, max_tries)
-    return [kids.policy(k) for k in range(len(kids))], repaired
-
-
 def crossover_group(parents: list[tuple[ExemplarPolicy, ExemplarPolicy]],
                     rng: np.random.Generator, n_child: int, l_min: int, l_max: int,
                     rate: tuple[float, float], max_tries: int) -> tuple[FlatPolicies, int]:
-    """``crossovers``' children as one flat group (family-major), and the number repaired."""
+    """The ``n_child`` children of each pair of ``parents`` (family by family) as one flat
+    group (family-major), drawn from ``rng`` exactly as ``uniform_crossover`` would draw
+    them one by one, and the number of children repaired."""
     first = parents[0][0]
     problem, style = first.problem, first.style
     flat = [p for pair in parents for p in pair]
@@ -200,16 +192,12 @@ def crossover_group(parents: list[tuple[ExemplarPolicy, ExemplarPolicy]],
     lengths = np.diff(out_start)
     rows = out_idx[:out_start[-1]]
     if repaired:           # a repaired child's records appended, its rows in its place
-        parts, cuts, end = [], [], total
-        for k in sorted(repaired):
-            lengths[k] = len(repaired[k])
-            parts.append(repaired[k])
-            cuts.append((out_start[k], np.arange(end, end + lengths[k])))
-            end += lengths[k]
-        pieces, at = [], 0
-        for cut, fresh in cuts:
-            pieces += [rows[at:cut], fresh]
-            at = cut
+        parts = [repaired[k] for k in sorted(repaired)]
+        pieces, at, end = [], 0, total
+        for k, part in zip(sorted(repaired), parts):
+            lengths[k] = len(part)
+            pieces += [rows[at:out_start[k]], np.arange(end, end + len(part))]
+            at, end = out_start[k], end + len(part)
         rows = np.concatenate(pieces + [rows[at:]])
         states, actions, values, states2 = (
             np.concatenate([source] + [getattr(part, name) for part in parts])

@@ -249,38 +249,26 @@ class SapGA(Optimizer):
     def _stars(self, g: 'Generation', values: np.ndarray, dstar: np.ndarray) -> list:
         """Each family's best member pi* (``_rank``; the first of equals in the order parent
         i, parent j, children, or children first for the *-child variants)."""
-        n = g.n_child
-        children_first = self.params.variant in ('child-ties', 'dstar-child')
-        rank = self._rank
+        vals, dists = g.child_values(values), g.child_values(dstar)
         if self.params.variant in ('dstar', 'dstar-child'):
-            near = g.child_values(np.where(np.isnan(dstar), -math.inf, -dstar)).ravel().tolist()
-            vals = g.child_values(values).ravel().tolist()
-            keys = list(zip(near, vals))
-            best_k = []
-            for f in range(len(g.couples)):
-                k = f * n
-                for c in range(f * n + 1, (f + 1) * n):
-                    if keys[c] > keys[k]:
-                        k = c
-                best_k.append(k)
-            best_key = [keys[k] for k in best_k]
+            best = [self._first_best(v, d) for v, d in zip(vals, dists)]
         else:
-            table = g.child_values(values)
-            best_k = (table.argmax(axis=1) + np.arange(0, len(table) * n, n)).tolist()
-            best_key = table.max(axis=1).tolist()
+            best = vals.argmax(axis=1).tolist()   # ``_first_best`` of each row, at once
+        children_first = self.params.variant in ('child-ties', 'dstar-child')
         stars = []
         for f, (a, b) in enumerate(g.parents):
+            c = best[f]
+            child = self._key(float(vals[f, c]), float(dists[f, c]))
             if children_first:                    # as max over (children..., a, b)
-                star, key = None, best_key[f]
+                star, key = None, child
                 for m in (a, b):
-                    if rank(m) > key:
-                        star, key = m, rank(m)
+                    if self._rank(m) > key:
+                        star, key = m, self._rank(m)
             else:                                 # as max over (a, b, children...)
-                star = b if rank(b) > rank(a) else a
-                key = rank(star)
-                if best_key[f] > key:
+                star = b if self._rank(b) > self._rank(a) else a
+                if child > self._rank(star):
                     star = None
-            stars.append(g.child(best_k[f]) if star is None else star)
+            stars.append(g.child(f * g.n_child + c) if star is None else star)
         return stars
 
     def _first_best(self, values: np.ndarray, dstar: np.ndarray) -> int:
@@ -293,9 +281,13 @@ class SapGA(Optimizer):
 
     def _rank(self, m: Individual):
         """What selection maximises: the value (paper), or nearness to the goal first."""
+        return self._key(m.value, m.delta_star)
+
+    def _key(self, value: float, delta_star: float):
+        """``_rank`` of a member of this value and delta*."""
         if self.params.variant in ('dstar', 'dstar-child'):
-            return (-m.delta_star if not math.isnan(m.delta_star) else -math.inf, m.value)
-        return m.value
+            return (-delta_star if not math.isnan(delta_star) else -math.inf, value)
+        return value
 
     @property
     def steps(self) -> int:
