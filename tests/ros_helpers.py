@@ -261,13 +261,14 @@ class Probe(Node):
             self.event('end_stop', episode)
 
 
-def run_lockstep(ros, problem, policy, path, delta, episodes=2, **sim_params):
+def run_lockstep(ros, problem, policy, path, delta, episodes=2, policy_params=None,
+                 **sim_params):
     """Sim (lockstep) + policy node + probe in process; the policy is set once all match
-    (``sim_params``: more simulator parameters)."""
+    (``policy_params``, ``sim_params``: more policy node and simulator parameters)."""
     from sapga_ros.nodes.policy_node import PolicyNode
     from sim_nodes.ros.sim_node import SimNode
     probe = ros.start(Probe, problem=problem)
-    pol = ros.start(PolicyNode, params={'problem': problem.name})
+    pol = ros.start(PolicyNode, params={'problem': problem.name, **(policy_params or {})})
     sim = ros.start(SimNode, params={'problem': problem.name, 'mode': 'lockstep',
                                      'delta': delta, 'max_episodes': episodes,
                                      'republish_period': 0.05, **sim_params})

@@ -197,17 +197,23 @@ def test_a_simulator_stepping_the_plant_reproduces_the_engine(acrobot_problem, p
     d = dataclasses.replace(load_disturbance('field'), pushes=2, push_size=0.3, gain=0.1)
     key = (4, 0, 1, 2)
     ep = ev(acrobot_problem, d).episode(policies[6], key)
-    plant = Plant(acrobot_problem, d, N)
-    select = StateSelector(policies[6])
+    states, actions = plant_episode(Plant(acrobot_problem, d, N), StateSelector(policies[6]),
+                                    key, ep.steps)
+    np.testing.assert_array_equal(states, ep.states)
+    np.testing.assert_array_equal(actions, ep.actions)
+
+
+def plant_episode(plant, selector, key, steps: int) -> tuple[np.ndarray, np.ndarray]:
+    """(states, applied commands) of ``steps`` steps of ``plant`` (a ``Plant``) stepped as
+    the simulator node steps it, ``selector`` (a ``StateSelector``) answering what it sees."""
     s = plant.reset(key)
     states, actions = [s.copy()], []
-    step = model_module('acrobot').mdp_step
-    for _ in range(ep.steps):
-        a = plant.command(select.select(plant.observe(s))[1])
+    step = model_module(plant.problem.model).mdp_step
+    for _ in range(steps):
+        a = plant.command(selector.select(plant.observe(s))[1])
         plant.push(s)
         step(s, a, plant.params)
         plant.advance()
         states.append(s.copy())
         actions.append(a)
-    np.testing.assert_array_equal(np.array(states), ep.states)
-    np.testing.assert_array_equal(np.array(actions), ep.actions)
+    return np.array(states), np.array(actions)

@@ -49,3 +49,28 @@ def test_lockstep_episodes_of_a_disturbed_simulator_equal_the_engine(ros, tmp_pa
     chosen = problem.action_values[policy.actions[eps[0].exemplars]]
     assert probe.commands[:eps[0].steps] == list(chosen)  # what the policy answered
     assert sim._plant.on
+
+
+@pytest.mark.parametrize('how', ['file', 'node'])
+def test_a_policy_designed_for_the_delay_runs_over_ros_as_in_the_engine(ros, tmp_path, how):
+    """A delay-1 policy (the file's own ``delay``, or a plain file run by a policy node with
+    ``delay:=1``) against a simulator with one step of latency and model error: each lockstep
+    episode ends where the engine's ends, the node predicting with the commands in flight and
+    forgetting them when an episode starts (the problem's initial state)."""
+    from sapga_ros.policies.classical import ahead
+    problem = load_problem('acrobot')
+    plain = random_exemplars(problem, 60, np.random.default_rng(22), 'state-action')
+    policy = ahead(plain, 1)
+    profile = tmp_path / 'late.yaml'
+    profile.write_text('latency: 1\nmismatch: {masses: 0.05, lengths: 0.05}\n')
+    ev = Evaluator(problem, 0.3, disturbance=load_disturbance(str(profile)))
+    eps = [ev.episode(policy, (9, 0, HELD_OUT, k)) for k in range(2)]
+    assert ev.episode(plain, (9, 0, HELD_OUT, 0)).ret != eps[0].ret   # the prediction acts
+    probe, _ = run_lockstep(ros, problem, policy if how == 'file' else plain,
+                            tmp_path / 'policy.json', 0.3,
+                            policy_params={'delay': 1} if how == 'node' else None,
+                            disturbance=str(profile), disturbance_seed=9)
+    for k, ep in enumerate(eps, 1):
+        end = probe.end_of(k)
+        assert (end['step'], end['return'], end['delta_star']) == (ep.steps, ep.ret,
+                                                                   ep.delta_star)

@@ -202,3 +202,34 @@ def test_load_policy_without_a_trainer_fails_with_the_reason(ros, acrobot):
     response = ros.call(probe.load_policy, Trigger.Request())
     assert not response.success and 'no_trainer is not available' in response.message
     assert pol.active is None
+
+
+def test_a_node_with_a_delay_runs_plain_policies_ahead_and_refuses_the_others(
+        ros, acrobot, tmp_path):
+    """delay:=1 runs every plain exemplar file (and a policy from the trainer) as designed
+    for one step of delay; a hybrid or a file with its own delay is refused, naming it, and
+    the policy in use stays."""
+    from sapga_ros.evaluation.classical_design import classical_policy
+    from sapga_ros.policies.classical import AHEAD_KIND, ahead, with_catch
+    plain = tmp_path / 'plain.json'
+    random_policy(acrobot, 3).save(plain)
+    hybrid = tmp_path / 'hybrid.json'
+    hybrid.write_text(with_catch(random_policy(acrobot, 4),
+                                 classical_policy(acrobot, c=0.1)).to_json())
+    own = tmp_path / 'own.json'
+    own.write_text(ahead(random_policy(acrobot, 5), 2).to_json())
+    trainer = ros.start(FakeTrainer, answers=[(True, hybrid.read_text()),
+                                              (True, random_policy(acrobot, 6).to_json())])
+    probe = ros.start(Probe, problem=acrobot)
+    pol = ros.start(PolicyNode, params={'policy_file': str(plain), 'delay': 1})
+    active = pol.active
+    assert active.policy.kind == AHEAD_KIND and active.policy.delay == 1
+    assert active.selector.stateful
+    for path, words in ((hybrid, 'only a plain exemplar policy'), (own, 'designed for 2')):
+        result = pol.set_parameters([Parameter('policy_file', value=str(path))])[0]
+        assert not result.successful and str(path) in result.reason, result.reason
+        assert words in result.reason and pol.active is active
+    response = ros.call(probe.load_policy, Trigger.Request())
+    assert not response.success and 'only a plain exemplar policy' in response.message
+    response = ros.call(probe.load_policy, Trigger.Request())
+    assert response.success and pol.active.policy.delay == 1 and trainer.calls == 2

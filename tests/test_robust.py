@@ -182,8 +182,9 @@ def test_experiment_rows_take_the_robust_settings():
         with pytest.raises(ConfigError, match=r'set\.experiments\[0\].*' + message):
             _experiment({**row, **bad}, 'set.experiments[0]')
     robust_set = load_experiments('robust')[0]
-    assert [e.redraw for e in robust_set] == [False, False, True, False, False]
-    assert [e.catch_delay for e in robust_set] == [0, 0, 0, 1, 1]
+    assert [e.redraw for e in robust_set] == [False, False, True, False, False, False]
+    assert [e.catch_delay for e in robust_set] == [0, 0, 0, 1, 1, 0]
+    assert [e.delay for e in robust_set] == [0, 0, 0, 0, 0, 1]
     delayed = _experiment({**row, 'catch': 'lqr', 'catch_delay': 1}, 'set.experiments[0]')
     assert run_key('s', delayed, 0, 1000)['experiment']['catch_delay'] == 1
     assert 'catch_delay' not in run_key('s', redrawn, 0, 1000)['experiment']

@@ -3,9 +3,10 @@
     sapga train --problem P [--method sapga|ql|cmaes] [--delta D] [--steps N] [--seed S]
                 [--jobs J] [--out FILE] [--checkpoint DIR] [--resume] [--init FILE ...]
                 [--style S] [--pop N] [--children N] [--l-min N] [--l-max N] ...
-    sapga eval POLICY [--delta D] [--max-steps N] [--json]
+    sapga eval POLICY [--delta D] [--max-steps N] [--json] [--delay N]
                [--disturbance NAME [--episodes N] [--seed S]]
     sapga robustness POLICY ... --out DIR [--disturbance NAME ...] [--scales F,F,...]
+                     [--delay N]
     sapga exemplars POLICY [--json] [--plot OUT.png] [--prune-unused OUT.json]
     sapga bench [--json] [--ros [--problem P] [--realtime]] [--style S] [--training [--steps N]]
     sapga inspect BAG [--json] [--plot OUT.png] [--episode N]
@@ -45,6 +46,7 @@ from sapga_ros.errors import SapgaError
 from sapga_ros.io.jsonfile import dumps
 from sapga_ros.policies.styles import STYLES
 from sapga_ros.launch.prefix import ensure_ament_prefix
+from sapga_ros.policies.classical import RUN_DELAY
 from sim_nodes.params import DELTA
 
 EXIT_USAGE = 2
@@ -74,6 +76,7 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument('--seed', type=nonneg_int, default=0,
                    help='seed of the disturbances drawn (default 0; never the draws a '
                         'training run used)')
+    add_param(e, RUN_DELAY)
 
     x = sub.add_parser('exemplars', help='list, plot or prune a policy\'s exemplars')
     x.add_argument('policy')
@@ -125,8 +128,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 def cmd_eval(args) -> int:
     from sapga_ros.evaluation.evaluator import run_policy_episode
+    from sapga_ros.policies.classical import ahead
     from sapga_ros.policies.kinds import load_any_policy, policy_delta
-    policy = load_any_policy(args.policy)
+    policy = ahead(load_any_policy(args.policy), args.delay)
     delta = policy_delta(policy, args.delta)
     if args.disturbance:
         return _eval_disturbed(args, policy, delta)

@@ -15,6 +15,8 @@ import argparse
 from pathlib import Path
 
 from sapga_ros.cli.args import check_output_dir, episode_steps, nonneg_int
+from sapga_ros.policies.classical import RUN_DELAY
+from sim_nodes.options import add_param
 
 PROFILES = ('sensor', 'latency', 'mismatch', 'push', 'field')
 
@@ -41,6 +43,9 @@ def add_robustness_arguments(r: argparse.ArgumentParser) -> None:
     r.add_argument('--episodes', type=episode_steps, default=50,
                    help='disturbed episodes per policy and size (default 50)')
     r.add_argument('--seed', type=nonneg_int, default=0, help='seed of the draws (default 0)')
+    add_param(r, RUN_DELAY, help='run every exemplar policy as designed for N MDP steps of '
+              'actuation delay (its selector acts on the state predicted that far ahead); 0: '
+              'as each file says (default 0)')
 
 
 def cmd_robustness(args: argparse.Namespace) -> int:
@@ -48,12 +53,13 @@ def cmd_robustness(args: argparse.Namespace) -> int:
     from sapga_ros.evaluation.sweep import sweep
     from sapga_ros.io.jsonfile import dumps
     from sapga_ros.io.atomic import write_inside
+    from sapga_ros.policies.classical import ahead
     from sapga_ros.policies.kinds import load_any_policy, policy_delta
     from sapga_ros.viz.robustness_plot import curve_figures
     from sim_nodes.disturbance import load_disturbance
     out = Path(args.out)
     check_output_dir(out, '--out')
-    policies = [load_any_policy(p) for p in args.policies]
+    policies = [ahead(load_any_policy(p), args.delay) for p in args.policies]
     if len({p.problem.name for p in policies}) > 1:
         raise SapgaError('robustness curves compare policies of one problem')
     profiles = [load_disturbance(name) for name in args.disturbance or PROFILES]

@@ -7,7 +7,9 @@ else, or when it declines, the exemplar selector ``select`` answers.  Modes:
 * ``CATCH`` (the hybrid): inside the region x'Px <= c around the upright state the LQR
   answers, outside the exemplars do;
 * ``CLASSICAL``: inside the region the LQR answers, outside the energy swing-up does (no
-  exemplars).
+  exemplars);
+* ``AHEAD``: the exemplars answer for the state predicted for when the command arrives
+  (below; no LQR, no region): an exemplar policy designed for an actuation delay.
 
 x is the state minus the best state, angles as the signed shortest way round.  Every
 controller action is the problem's action nearest to the continuous command (ties to the
@@ -23,7 +25,8 @@ itself; near the top, where the model is linear, the LQR of -K on this predictio
 LQR of the state augmented with the commands in flight).  The region test, -Kx and the
 swing-up all act on the prediction, so on the undisturbed plant with latency d the
 controlled episode is the undelayed one, d steps later.  d = 0 is the undelayed
-controller.
+controller.  In ``AHEAD`` mode the exemplar selector acts on the prediction (in a hybrid,
+``CATCH``, only the LQR does, as its files were designed).
 
 ``ctl`` (float64, ``sapga_ros.policies.controller_row``) layout: [mode, c, swing-up kind,
 delay, NG swing-up constants, K (D), P (D*D)].
@@ -41,8 +44,8 @@ from sim_nodes.jit import kernel
 
 from sapga_ros.exemplars.selectors import select
 from sim_nodes.models.dispatch import step_lanes
-from sapga_ros.policies.controller_row import (CLASSICAL, DELAY, C, GAINS, HEAD, MODE, NG,
-                                               NONE, SWING, SWING_ACROBOT, SWING_CART)
+from sapga_ros.policies.controller_row import (AHEAD, CLASSICAL, DELAY, C, GAINS, HEAD, MODE,
+                                               NG, NONE, SWING, SWING_ACROBOT, SWING_CART)
 
 
 @kernel(inline='always')
@@ -147,17 +150,30 @@ def choose(style, model, s, ex, ex2, act, val, n, actions, p, inv_range, is_angl
     dim = s.shape[0]
     ahead = x[dim:]                       # the state the command will act on
     predict(ctl, model, s, p, mem, w_state, w_act, w_rew, ahead)
-    inside, command = lqr(ctl, ahead, best, is_angle, x)
+    inside, command = False, 0.0
+    if ctl[MODE] != AHEAD:
+        inside, command = lqr(ctl, ahead, best, is_angle, x)
     if inside:
         j, action = -1, nearest_action(command, actions)
     elif ctl[MODE] == CLASSICAL:
         j, action = -1, nearest_action(swing_up(ctl, ahead), actions)
-    else:
-        j, action, progress = select(style, model, s, ex, ex2, act, val, n, actions, p,
-                                     inv_range, is_angle, radius2, goal_u, progress, used, u,
-                                     acc, w_state, w_act, w_rew)
+    else:   # the exemplars: on the prediction (AHEAD), on the state seen (a hybrid's)
+        j, action, progress = select(style, model, ahead if ctl[MODE] == AHEAD else s, ex,
+                                     ex2, act, val, n, actions, p, inv_range, is_angle,
+                                     radius2, goal_u, progress, used, u, acc, w_state, w_act,
+                                     w_rew)
     remember(ctl, mem, action)
     return j, action, progress
+
+
+def uniform_ahead(ctl: np.ndarray) -> int | None:
+    """d if every controller row is ``AHEAD`` with one delay d, else None: the episode
+    engine's argument that makes a state-action batch predict its lanes side by side (None
+    compiles that code out of the loop)."""
+    if ctl.shape[0] == 0 or ctl.shape[1] <= DELAY or np.any(ctl[:, MODE] != AHEAD):
+        return None
+    delays = ctl[:, DELAY]
+    return int(delays[0]) if np.all(delays == delays[0]) else None
 
 
 @kernel

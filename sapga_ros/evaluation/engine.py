@@ -18,7 +18,10 @@ written to the policy's entries when its episode ends).  State-action policies w
 controller take their own selection loop (the nearest exemplar's action, what ``choose``
 returns for them; the disturbances' draws as in the general loop): without the other
 styles' and the controllers' code in its body the compiler keeps it in registers, which
-roughly halves the selection's cost.
+roughly halves the selection's cost.  So do state-action policies that all select on the
+state predicted the same d steps ahead (``AHEAD`` controllers of one delay, a run trained
+with ``delay``): the lanes' predictions are d model steps of all lanes side by side, each
+lane's arithmetic that of ``choose``'s ``predict``.
 
 Packed policies (``Evaluator.pack``): ex (P, D, L) and ex2 (P, D, L or 1) normalised
 states, act (P, L) action values, val (P, L) values, lengths (P,).  ``sel`` are the
@@ -42,12 +45,49 @@ LANES = 16           # episodes side by side in one thread (two 8-wide vectors)
 BLOCKS_PER_THREAD = 4  # shares of a batch per thread, for load balance
 
 
+@kernel(inline='always')
+def nearest_lanes(seen, pol, ex, act, lengths, inv_range, is_angle, U, acc, used, chosen, a):
+    """State-action selection of every busy lane (policy ``pol[lane]`` >= 0) for the states
+    ``seen`` (D, LANES): the lanes normalised side by side into U, then each lane's nearest
+    exemplar (marked used), its index into ``chosen`` and its action into ``a``."""
+    normalize_lanes(seen, LANES, inv_range, is_angle, U)
+    for lane in range(LANES):
+        k = pol[lane]
+        if k >= 0:
+            j = nearest(U[lane], ex[k], lengths[k], is_angle, acc)
+            used[k, j] = True
+            chosen[lane] = j
+            a[lane] = act[k, j]
+
+
+@kernel
+def predict_lanes(model, seen, memory, ahead, p, predicted, in_flight, r_pred):
+    """Into ``predicted``: each lane's state ``ahead`` nominal MDP steps on from ``seen``
+    with the lane's commands in flight (``memory``, oldest first), the lanes side by side;
+    lane by lane what ``control.predict`` computes."""
+    predicted[:, :] = seen
+    for m in range(ahead):
+        for lane in range(predicted.shape[1]):
+            in_flight[lane] = memory[lane, m]
+        step_lanes(model, predicted, in_flight, p, predicted.shape[1], r_pred)
+
+
+@kernel
+def remember_lanes(memory, ahead, a):
+    """Each lane's command ``a[lane]`` joins its ``ahead`` commands in flight (oldest first),
+    as ``control.remember`` does."""
+    for lane in range(a.shape[0]):
+        for m in range(ahead - 1):
+            memory[lane, m] = memory[lane, m + 1]
+        memory[lane, ahead - 1] = a[lane]
+
+
 @kernel
 def run_share(model, style, ex, ex2, act, val, lengths, first, stop, s0, p, inv_range,
               is_angle, best, inv_scale, fixed, delta, n_step, actions, radius2, goal_u,
               alt_inv_scale, alt_fixed, ends_in_goal, hold_bonus, contact_below, fail_charge,
-              ctl, dist, keys, returns, steps, dstar, dstar_alt, reached, used, first_entry, held,
-              contacts, tr_state, tr_idx, tr_act, tr_reward):
+              ctl, ahead, dist, keys, returns, steps, dstar, dstar_alt, reached, used,
+              first_entry, held, contacts, tr_state, tr_idx, tr_act, tr_reward):
     """Evaluate policies first..stop-1 on LANES lanes.
 
     The hold task: with ``ends_in_goal`` false an episode runs all n_step steps;
@@ -61,7 +101,10 @@ def run_share(model, style, ex, ex2, act, val, lengths, first, stop, s0, p, inv_
     to the return, after the step's reward and bonus.  ``ctl[k]`` is policy k's
     controller (``sapga_ros.evaluation.control``; one 0 column: none); a controller
     designed for an actuation delay remembers the commands it issued in its lane's
-    ``memory`` (zero at the start of every episode).
+    ``memory`` (zero at the start of every episode).  ``ahead`` (state-action policies whose
+    controllers are all ``AHEAD`` of one delay d: ``control.uniform_ahead``) is d, and the
+    lanes' predictions are then stepped side by side; None otherwise (a None argument
+    compiles that branch out of the loop, which the plain loop's speed depends on).
 
     ``dstar_alt`` is delta* under an alternative reading of the goal box (alt_inv_scale,
     alt_fixed; measured only, never ending an episode); empty alt arrays: not measured.
@@ -106,6 +149,9 @@ def run_share(model, style, ex, ex2, act, val, lengths, first, stop, s0, p, inv_
     # state-action without a controller (a 0 column): its own loop, where the compiler
     # knows the style (the other styles' and the controllers' code leaves it)
     plain = style == STATE_ACTION and ctl.shape[1] == 1
+    predicted = np.empty((dim, LANES))          # where the selector's commands will act
+    in_flight = np.zeros(LANES)
+    r_pred = np.zeros(LANES)
     obs = np.zeros((dim, LANES))                # what the selector sees
     plant = np.empty((LANES, p.shape[0]))      # each lane's plant parameters (idle: p)
     for lane in range(LANES):
@@ -157,14 +203,13 @@ def run_share(model, style, ex, ex2, act, val, lengths, first, stop, s0, p, inv_
                     observe(dist, key[lane], n[lane], S[:, lane], is_angle, obs[:, lane])
             seen = obs
         if plain:                               # choose without a controller
-            normalize_lanes(seen, LANES, inv_range, is_angle, U)
-            for lane in range(LANES):
-                k = pol[lane]
-                if k >= 0:
-                    j = nearest(U[lane], ex[k], lengths[k], is_angle, acc)
-                    used[k, j] = True
-                    chosen[lane] = j
-                    a[lane] = act[k, j]
+            nearest_lanes(seen, pol, ex, act, lengths, inv_range, is_angle, U, acc, used,
+                          chosen, a)
+        elif ahead is not None:                 # the same on d nominal steps ahead
+            predict_lanes(model, seen, memory, ahead, p, predicted, in_flight, r_pred)
+            nearest_lanes(predicted, pol, ex, act, lengths, inv_range, is_angle, U, acc, used,
+                          chosen, a)
+            remember_lanes(memory, ahead, a)
         else:
             for lane in range(LANES):
                 k = pol[lane]
@@ -238,8 +283,8 @@ def run_share(model, style, ex, ex2, act, val, lengths, first, stop, s0, p, inv_
 def evaluate_batch(model, style, ex, ex2, act, val, lengths, s0, p, inv_range, is_angle,
                    best, inv_scale, fixed, delta, n_step, actions, radius2, goal_u,
                    alt_inv_scale, alt_fixed, ends_in_goal, hold_bonus, contact_below,
-                   fail_charge, ctl, dist, keys, shares, returns, steps, dstar, dstar_alt,
-                   reached, used, first_entry, held, contacts):
+                   fail_charge, ctl, ahead, dist, keys, shares, returns, steps, dstar,
+                   dstar_alt, reached, used, first_entry, held, contacts):
     """Evaluate policies ex[k, :, :lengths[k]] in ``shares`` parallel shares (untraced;
     ``dist``, ``keys``: the disturbances, as in ``run_share``)."""
     count = ex.shape[0]
@@ -252,5 +297,5 @@ def evaluate_batch(model, style, ex, ex2, act, val, lengths, s0, p, inv_range, i
         run_share(model, style, ex, ex2, act, val, lengths, first, stop, s0, p, inv_range,
                   is_angle, best, inv_scale, fixed, delta, n_step, actions, radius2, goal_u,
                   alt_inv_scale, alt_fixed, ends_in_goal, hold_bonus, contact_below,
-                  fail_charge, ctl, dist, keys, returns, steps, dstar, dstar_alt, reached,
-                  used, first_entry, held, contacts, no_state, no_idx, no_val, no_val)
+                  fail_charge, ctl, ahead, dist, keys, returns, steps, dstar, dstar_alt,
+                  reached, used, first_entry, held, contacts, no_state, no_idx, no_val, no_val)

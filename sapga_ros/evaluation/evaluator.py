@@ -18,13 +18,14 @@ import numba
 import numpy as np
 
 from sapga_ros.errors import SapgaError
+from sapga_ros.evaluation.control import uniform_ahead
 from sapga_ros.evaluation.engine import BLOCKS_PER_THREAD, evaluate_batch, run_share
 from sapga_ros.exemplars.distance import (normalize_padded_into, normalize_rows_padded_into,
                                           normalize_states, pad_into, pad_rows_into)
 from sapga_ros.policies.batch import PolicyBatch, flat_of
 from sapga_ros.policies.episode import Episode
 from sapga_ros.policies.exemplar import ExemplarPolicy
-from sapga_ros.policies.styles import STYLES
+from sapga_ros.policies.styles import STATE_ACTION, STYLES
 from sim_nodes.disturbance import Disturbance
 from sim_nodes.models import model_id
 from sim_nodes.goal import alt_goal_arrays, goal_arrays, hold_measures
@@ -179,8 +180,9 @@ class Evaluator:
         draws = _held_keys(policies, keys, count)
         if count:
             shares = max(1, min(count, numba.get_num_threads() * BLOCKS_PER_THREAD))
+            ctl = self.controls(policies)
             evaluate_batch(self.model, style, ex, ex2, act, val, lengths, *self._consts(),
-                           self.controls(policies), self.dist, draws, shares,
+                           ctl, _ahead(ctl, style), self.dist, draws, shares,
                            returns, steps, dstar, dstar_alt, reached, used, first, held,
                            contacts)
         rows = getattr(policies, 'rows', None)
@@ -205,8 +207,9 @@ class Evaluator:
         tr_idx = np.zeros(self.n_step, dtype=np.int64)
         tr_act = np.zeros(self.n_step)
         tr_reward = np.zeros(self.n_step)
+        ctl = self.controls([policy])
         run_share(self.model, style, ex, ex2, act, val, lengths, 0, 1, *self._consts(),
-                  self.controls([policy]), self.dist, _keys([key], 1), returns, steps, dstar,
+                  ctl, _ahead(ctl, style), self.dist, _keys([key], 1), returns, steps, dstar,
                   dstar_alt, reached, used, first, held, contacts, tr_state, tr_idx, tr_act,
                   tr_reward)
         n = int(steps[0])
@@ -214,6 +217,12 @@ class Evaluator:
                        tr_reward[:n].copy(), float(returns[0]), n, float(dstar[0]),
                        bool(reached[0]), used[0, :len(policy)].copy(), int(first[0]),
                        int(held[0]), int(contacts[0]))
+
+
+def _ahead(ctl: np.ndarray, style: int) -> int | None:
+    """The engine's ``ahead``: the one delay of a state-action batch whose every policy
+    selects on the predicted state, else None."""
+    return uniform_ahead(ctl) if style == STATE_ACTION else None
 
 
 def run_policy_episode(policy: Any, delta: float, max_steps: int | None = None) -> Episode:

@@ -48,6 +48,8 @@ from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
 from sapga_ros.errors import PolicyFileError, SapgaError
+from sapga_ros.policies.classical import ahead
+from sapga_ros.policies.exemplar import ExemplarPolicy
 from sapga_ros.policies.runnable import load_policy, policy_from_json
 from sapga_ros.policies.jsonfile import MAX_POLICY_BYTES
 from sapga_ros.io.bounded import open_regular
@@ -91,6 +93,7 @@ class PolicyNode(GuardedNode):
         self.problem: Problem = load_problem(values['problem'])
         policy_file, service = values['policy_file'], values['trainer_service']
         self.load_timeout = values['load_timeout']
+        self.delay = values['delay']         # run plain exemplar policies as designed for it
         self.markers = values['markers']
         self.qos_profile = values['qos_profile']
 
@@ -146,7 +149,7 @@ class PolicyNode(GuardedNode):
         if policy_file:
             # At start-up nothing waits for an answer: load at once, whatever the size, and a
             # file that cannot be used is a user error (PolicyFileError: one line, exit 2).
-            self._install(PreparedPolicy.of(load_policy(policy_file, p), policy_file))
+            self._install(PreparedPolicy.of(self._read(policy_file), policy_file))
             self._file_in_use = policy_file
         self.get_logger().info(f'{p.name} policy node; load_policy fetches from {service!r}')
         if not self.mapping.identity or self._effort_pub is not None:
@@ -234,11 +237,22 @@ class PolicyNode(GuardedNode):
         """The source of the policy being prepared in the background, if any."""
         return self._loader.loading
 
+    def _read(self, path: str) -> ExemplarPolicy:
+        """Policy file ``path`` as this node runs it."""
+        return self._as_run(load_policy(path, self.problem), path)
+
+    def _as_run(self, policy: ExemplarPolicy, source: str) -> ExemplarPolicy:
+        """``policy`` (from ``source``) designed for the node's ``delay``, if set."""
+        try:
+            return ahead(policy, self.delay)
+        except PolicyFileError as exc:
+            raise PolicyFileError(f'{source}: {exc}') from None
+
     def _load_file(self, path: str) -> None:
         """Load policy file ``path`` in a worker thread; swap it in when it is ready."""
         self.get_logger().info(f'loading {path} in the background; the policy in use '
                                'answers meanwhile')
-        self._loader.start(path, lambda: load_policy(path, self.problem), self._file_loaded)
+        self._loader.start(path, lambda: self._read(path), self._file_loaded)
 
     def _file_loaded(self, result: LoadResult) -> None:
         if result.prepared is not None:
@@ -258,8 +272,8 @@ class PolicyNode(GuardedNode):
     async def _prepare_json(self, text: str, source: str) -> LoadResult:
         """Validate and pack a policy document in a worker thread."""
         done = Future()
-        self._loader.start(source, lambda: policy_from_json(text, problem=self.problem,
-                                                            source=source), done.set_result)
+        self._loader.start(source, lambda: self._as_run(policy_from_json(
+            text, problem=self.problem, source=source), source), done.set_result)
         return await done
 
     async def _on_load_policy(self, request: Trigger.Request, response: Trigger.Response
@@ -289,8 +303,7 @@ class PolicyNode(GuardedNode):
             if param.name == 'policy_file' and path and path != self._reverting:
                 try:
                     if policy_file_size(path) <= SYNC_BYTES:   # else: in the background
-                        self._staged[path] = PreparedPolicy.of(load_policy(path, self.problem),
-                                                               path)
+                        self._staged[path] = PreparedPolicy.of(self._read(path), path)
                 except SapgaError as exc:
                     self.get_logger().error(f'policy refused, keeping the current one: {exc}')
                     return SetParametersResult(successful=False, reason=str(exc))

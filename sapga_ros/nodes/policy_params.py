@@ -10,6 +10,9 @@ policy_file       string    ''            a policy JSON file, loaded at start (a
 trainer_service   string    trainer_node/ the trainer's std_srvs/Trigger (read-only)
                             get_policy
 load_timeout      double    5.0           [s] wait for the trainer's answer at most
+delay             integer   0             run every plain exemplar policy as designed for
+                                          this many MDP steps of actuation delay (its
+                                          selector acts on the predicted state; read-only)
 markers           bool      true          publish the exemplar ghost on ``markers``
 qos_profile       string    reliable      ``reliable`` (the problem's ``ros.qos``) |
                                           ``sensor_data`` (best effort; read-only)
@@ -35,6 +38,7 @@ from __future__ import annotations
 from typing import Any
 
 from sapga_ros.nodes.joint_mapping import COMMAND_OUTPUTS, VELOCITY_SOURCES
+from sapga_ros.policies.controller_row import MAX_DELAY
 from sim_nodes.params import Param
 from sim_nodes.ros.common import QOS_PROFILES
 from sim_nodes.ros.executors import DEFAULT_EXECUTOR, EXECUTORS
@@ -48,6 +52,10 @@ PARAMETERS = (
           'load_policy calls', read_only=True),
     Param('load_timeout', 5.0, 'how long load_policy waits for the trainer', 1e-3, 86400.0,
           unit='s'),
+    Param('delay', 0, 'run every plain exemplar policy as designed for N MDP steps of '
+          'actuation delay: its selector acts on the state predicted that far ahead from the '
+          'commands in flight (nominal model); 0: as each policy file says', 0, MAX_DELAY,
+          read_only=True),
     Param('markers', True, 'publish the exemplar in use as a ghost on markers'),
     Param('qos_profile', 'reliable', 'reliable (the problem ros.qos) | sensor_data (best '
           'effort)', choices=QOS_PROFILES, read_only=True),

@@ -15,12 +15,14 @@ steps the controller is designed for: it remembers the commands in flight and ac
 state predicted for when its command arrives (``sapga_ros.evaluation.control``).
 
 A hybrid (exemplars + catch) is an ordinary exemplar policy document with one more field,
-``"catch": {"K": [...], "P": [[...]], "c": number}`` (and ``delay``, as above).  Both are
-parsed as hostile input: every number finite, every shape checked, the law and gain names
-known; the error names the field.  In memory both are ``ControlledPolicy``: an
-``ExemplarPolicy`` (no exemplars for the classical kind) with its packed controller row
-``control`` (``sapga_ros.evaluation.control``), so the episode engine, the traced episode
-and the policy node run them like any exemplar policy.
+``"catch": {"K": [...], "P": [[...]], "c": number}`` (and ``delay``, as above).  An exemplar
+policy designed for an actuation delay (no catch) has one more top-level field,
+``"delay": d`` (1 to 16): its selector acts on the state predicted d MDP steps ahead from the
+commands in flight.  All are parsed as hostile input: every number finite, every shape
+checked, the law and gain names known; the error names the field.  In memory all are
+``ControlledPolicy``: an ``ExemplarPolicy`` (no exemplars for the classical kind) with its
+packed controller row ``control`` (``sapga_ros.evaluation.control``), so the episode engine,
+the traced episode and the policy node run them like any exemplar policy.
 """
 from __future__ import annotations
 
@@ -38,6 +40,7 @@ from sim_nodes.params import Param
 from sim_nodes.problem import Problem
 
 KIND = 'classical'
+AHEAD_KIND = 'ahead'                # exemplars selecting on the predicted state
 LAWS = {  # law -> (swing-up kind, gain names in order)
     'acrobot-energy': (C.SWING_ACROBOT, ('kp', 'kd', 'ke')),
     'cart-energy': (C.SWING_CART, ('ke', 'kx', 'kv')),
@@ -46,6 +49,12 @@ LAWS = {  # law -> (swing-up kind, gain names in order)
 DELAY = Param('delay', 0, 'MDP steps of actuation delay the LQR is designed for: it acts on '
               'the state predicted that far ahead from the commands in flight; 0: none',
               low=0, high=C.MAX_DELAY)
+
+
+RUN_DELAY = Param('delay', 0, 'run the exemplar policy as designed for N MDP steps of '
+                  'actuation delay: its selector acts on the state predicted that far ahead '
+                  'from the commands in flight (the nominal model); 0: as its file says',
+                  low=0, high=C.MAX_DELAY)
 
 
 @dataclass(frozen=True)
@@ -69,7 +78,7 @@ DESIGNS = {
 class ControlledPolicy(ExemplarPolicy):
     """An exemplar policy behind a controller (classical: no exemplars)."""
 
-    kind: str = 'exemplar'                  # 'classical' or 'exemplar' (a hybrid)
+    kind: str = 'exemplar'                  # 'classical', 'exemplar' (a hybrid) or 'ahead'
     K: np.ndarray | None = None             # (D,) LQR gain
     P: np.ndarray | None = None             # (D, D) Riccati solution
     c: float = 0.0                          # catch region x'Px <= c
@@ -82,7 +91,7 @@ class ControlledPolicy(ExemplarPolicy):
         """The packed controller row ``sapga_ros.evaluation.control.choose`` takes."""
         dim = self.problem.dim
         row = np.zeros(C.HEAD + dim + dim * dim)
-        row[C.MODE] = C.CLASSICAL if self.kind == KIND else C.CATCH
+        row[C.MODE] = {KIND: C.CLASSICAL, AHEAD_KIND: C.AHEAD}.get(self.kind, C.CATCH)
         row[C.C] = self.c
         if self.kind == KIND:
             kind, names = LAWS[self.law]
@@ -109,6 +118,8 @@ class ControlledPolicy(ExemplarPolicy):
         return json.dumps(self.to_document(), indent=1, allow_nan=False) + '\n'
 
     def to_document(self) -> dict[str, Any]:
+        if self.kind == AHEAD_KIND:
+            return {**super().to_document(), 'delay': self.delay}
         if self.kind != KIND:
             return {**super().to_document(), 'catch': self.controller_document()}
         pr = self.problem
@@ -135,11 +146,36 @@ def swing_constants(problem: Problem, kind: int, gains: list[float]) -> list[flo
 def with_catch(policy: ExemplarPolicy, catch: ControlledPolicy,
                scale: float = 1.0) -> ControlledPolicy:
     """``policy`` handing over to the LQR of ``catch`` inside its x'Px <= c (c scaled by
-    ``scale``: an evolved catch region)."""
+    ``scale``: an evolved catch region); behind an ``ahead`` controller (``ahead``),
+    ``policy`` selecting on the predicted state."""
     return ControlledPolicy(policy.problem, policy.states, policy.actions, policy.meta,
                             policy.style, policy.values,
                             policy.states2 if policy.states2.shape[1] else None,
+                            kind=catch.kind if catch.kind == AHEAD_KIND else 'exemplar',
                             K=catch.K, P=catch.P, c=catch.c * scale, delay=catch.delay)
+
+
+def ahead(policy: Any, delay: int) -> Any:
+    """``policy`` designed for ``delay`` MDP steps of actuation delay: its selector acts on
+    the state predicted that far ahead from the commands in flight (the nominal model's
+    MDP step); ``delay`` 0: ``policy`` itself, whatever its kind.  Only a plain exemplar
+    policy takes a delay (a hybrid's or a classical policy's is its controller's)."""
+    reason = DELAY.reason(delay)
+    if reason:
+        raise PolicyFileError(reason)
+    if delay == 0:
+        return policy
+    if isinstance(policy, ControlledPolicy) and policy.kind == AHEAD_KIND:
+        raise PolicyFileError(f'delay: the policy is designed for {policy.delay} MDP steps of '
+                              'delay already (its file\'s delay)')
+    if isinstance(policy, ControlledPolicy) or not isinstance(policy, ExemplarPolicy):
+        raise PolicyFileError('delay: only a plain exemplar policy takes one (a hybrid or '
+                              'classical policy predicts by its controller\'s own delay; a '
+                              'Q-table acts on the state it sees)')
+    dim = policy.problem.dim
+    return with_catch(policy, ControlledPolicy(
+        policy.problem, np.zeros((0, dim)), kind=AHEAD_KIND, K=np.zeros(dim),
+        P=np.zeros((dim, dim)), c=0.0, delay=delay))
 
 
 def hybrid_of_valid(policy: ExemplarPolicy, catch: ControlledPolicy,

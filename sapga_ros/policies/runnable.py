@@ -1,5 +1,6 @@
 """The policies a selector runs, read from their one file form ``sapga-policy/1``: exemplar
-policies of any style, alone (``exemplar``), behind an LQR catch (the hybrid: a ``catch``
+policies of any style, alone (``exemplar``; with a ``delay`` field, selecting on the state
+predicted that many MDP steps ahead), behind an LQR catch (the hybrid: a ``catch``
 field) or the classical controller (``kind: classical``, no exemplars) (``classical``).
 
 Every reader of a policy the episode engine or the policy node runs comes through here, so
@@ -11,7 +12,7 @@ import os
 from typing import Any
 
 from sapga_ros.errors import PolicyFileError
-from sapga_ros.policies.classical import attach_catch, classical_from_document
+from sapga_ros.policies.classical import ahead, attach_catch, classical_from_document
 from sapga_ros.policies.exemplar import BULK, ExemplarPolicy, exemplar_from_document
 from sapga_ros.policies.jsonfile import as_text, excerpt, read_policy_text
 from sapga_ros.policies.jsonstream import complete, read_document
@@ -28,7 +29,15 @@ def policy_from_document(doc: Any, problem: str | Problem | None = None,
         return classical_from_document(complete(doc), problem, source)
     policy = exemplar_from_document(doc, problem, source, controlled=True)
     if 'catch' in doc:            # the hybrid: the LQR catches inside x'Px <= c
+        if 'delay' in doc:
+            raise PolicyFileError(f'{source}: delay: a hybrid\'s delay is its catch\'s '
+                                  '(catch.delay)')
         return attach_catch(policy, doc['catch'], source)
+    if 'delay' in doc:            # the selector acts on the state predicted that far ahead
+        try:
+            return ahead(policy, doc['delay'])
+        except PolicyFileError as e:
+            raise PolicyFileError(f'{source}: {e}') from None
     return policy
 
 

@@ -83,7 +83,7 @@ def summarise(exp: Experiment, runs: Iterable[dict], budget: int) -> dict:
         final.update(hold_summary(finals))
     return {'id': exp.id, 'problem': exp.problem, 'method': exp.method, 'delta': exp.delta,
             'style': exp.style, 'variant': exp.variant, 'catch': exp.catch,
-            'catch_delay': exp.catch_delay,
+            'catch_delay': exp.catch_delay, 'delay': exp.delay,
             'disturbance': exp.disturbance, 'episodes': exp.episodes, 'redraw': exp.redraw,
             'paper': exp.paper,
             'group': exp.group,
@@ -208,6 +208,8 @@ def row_method(s: dict) -> str:
         text += ' + LQR catch'
         if s.get('catch_delay'):
             text += f" (delay {s['catch_delay']})"
+    if s.get('delay'):
+        text += f" acting {s['delay']} step{'s' if s['delay'] > 1 else ''} ahead"
     if s.get('disturbance', 'none') != 'none':
         redrawn = ', drawn each generation' if s.get('redraw') else ''
         text += f" robust ({s['disturbance']}, K = {s.get('episodes', 1)}{redrawn})"

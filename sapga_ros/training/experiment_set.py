@@ -52,6 +52,7 @@ class Experiment:
     robust_stat: str = 'mean'              # value over the episodes: mean or qNN
     redraw: bool = False                   # the episodes drawn anew each generation
     catch_delay: int = 0                   # MDP steps of delay the catch's LQR is designed for
+    delay: int = 0                         # MDP steps of delay the exemplar selector predicts
 
 
 def _count(value: Any, where: str, low: int, high: int) -> int:
@@ -65,7 +66,7 @@ def _count(value: Any, where: str, low: int, high: int) -> int:
 _SET_KEYS = ('name', 'seeds', 'experiments', 'limits')
 _EXPERIMENT_KEYS = ('id', 'problem', 'delta', 'method', 'steps', 'style', 'paper', 'group',
                     'variant', 'seeds', 'catch', 'disturbance', 'episodes', 'robust_stat',
-                    'redraw', 'catch_delay')
+                    'redraw', 'catch_delay', 'delay')
 _LIMIT_KEYS = ('problem', 'alternative_goal', 'width', 'cells', 'per_cell')
 
 
@@ -141,7 +142,8 @@ def _experiment(e: Any, where: str) -> Experiment:
                      _count(e.get('episodes', 1), f'{where}.episodes', 1, MAX_EPISODES),
                      _text(e, 'robust_stat', where, 'mean', 40),
                      _flag(e, 'redraw', where),
-                     _count(e.get('catch_delay', 0), f'{where}.catch_delay', 0, MAX_DELAY))
+                     _count(e.get('catch_delay', 0), f'{where}.catch_delay', 0, MAX_DELAY),
+                     _count(e.get('delay', 0), f'{where}.delay', 0, MAX_DELAY))
     if not _WORD_RE.fullmatch(exp.group):
         raise ConfigError(f'{where}.group: expected a word (letters, digits, _ and -), '
                           f'got {exp.group!r}')
@@ -150,6 +152,9 @@ def _experiment(e: Any, where: str) -> Experiment:
                           f'rows only), got {exp.catch!r}')
     if exp.catch_delay and exp.catch != 'lqr':
         raise ConfigError(f'{where}.catch_delay: the delay of the LQR catch needs catch: lqr')
+    if exp.delay and (exp.catch != 'none' or exp.method not in ('sapga', 'cmaes')):
+        raise ConfigError(f'{where}.delay: the selector\'s delay is for exemplar rows without '
+                          'a catch (sapga, cmaes; a hybrid: catch_delay)')
     _robust(exp, where)
     from sapga_ros.optim.sapga import VARIANTS
     if exp.variant not in VARIANTS:
@@ -260,7 +265,7 @@ def run_seeds(exp: Experiment, seeds: list[int], steps: int) -> list[dict]:
                                steps=steps, seed=seed, jobs=1,
                                params=SapgaParams(style=exp.style, variant=exp.variant),
                                cmaes=CmaesParams(popsize=CMAES_POP), catch=exp.catch,
-                               catch_delay=exp.catch_delay,
+                               catch_delay=exp.catch_delay, delay=exp.delay,
                                disturbance=exp.disturbance, episodes=exp.episodes,
                                robust_stat=exp.robust_stat, redraw=exp.redraw)
                    for seed in seeds]

@@ -36,7 +36,7 @@ def run_path(out: Path, exp: Experiment, seed: int) -> Path:
 
 
 UNSET = (('catch', 'none'), ('disturbance', 'none'), ('episodes', 1), ('robust_stat', 'mean'),
-         ('redraw', False), ('catch_delay', 0))
+         ('redraw', False), ('catch_delay', 0), ('delay', 0))
 
 
 def run_key(name: str, exp: Experiment, seed: int, budget: int) -> dict:

@@ -72,6 +72,11 @@ class TrainConfig:
     catch_delay: int = param(0, 'MDP steps of actuation delay the catch\'s LQR is designed '
                              'for (--catch lqr): it acts on the state predicted that far ahead '
                              'from the commands in flight; 0: none', low=0, high=MAX_DELAY)
+    delay: int = param(0, 'MDP steps of actuation delay the exemplar selector is designed for '
+                       '(a plant that applies each command that late): it acts on the state '
+                       'predicted that far ahead from the commands in flight with the '
+                       'nominal model; 0: on the state it sees (a hybrid: --catch-delay)',
+                       low=0, high=MAX_DELAY)
     catch_sigma: float = param(0.0, 'log-normal mutation size of each policy\'s catch region '
                                '(--catch lqr): a child\'s c is a parent\'s times exp(sigma '
                                'N(0,1)), within 1/64..16 x the design\'s c; 0: the design\'s c '
@@ -95,6 +100,12 @@ class TrainConfig:
         check_stat(self.robust_stat)
         if self.catch_delay and self.catch != 'lqr':
             raise ConfigError('catch_delay: the delay of the LQR catch needs catch lqr')
+        if self.delay and self.catch != 'none':
+            raise ConfigError('delay: a hybrid acts on the prediction of its catch\'s delay '
+                              '(catch_delay); delay is for exemplar policies without a catch')
+        if self.delay and self.method == 'ql':
+            raise ConfigError('delay: a Q-table acts on the state it sees; exemplar methods '
+                              '(sapga, cmaes) only')
         if self.catch_sigma and self.catch != 'lqr':
             raise ConfigError('catch_sigma: evolving the catch region needs catch lqr')
         if self.redraw and not self.disturbed:
@@ -139,9 +150,10 @@ def run_settings(config: TrainConfig, problem: Problem, delta: float) -> dict:
     hybrid = ({'catch': config.catch, 'catch_delay': config.catch_delay}
               if config.catch != 'none' else {})
     evolved = {'catch_sigma': config.catch_sigma} if config.catch_sigma else {}
+    ahead = {'delay': config.delay} if config.delay else {}
     return json_roundtrip({'problem': problem.name, 'method': config.method, 'delta': delta,
                            'seed': config.seed, **cls.settings(problem, method_params(config)),
-                           **robust, **hybrid, **evolved})
+                           **robust, **hybrid, **evolved, **ahead})
 
 
 def method_params(config: TrainConfig) -> SapgaParams | QlParams | CmaesParams:
@@ -262,6 +274,10 @@ def _rounds(config: TrainConfig, initial: list[ExemplarPolicy] = (),
                               '--catch lqr would add nothing')
         catch = with_catch(ExemplarPolicy(problem, np.zeros((0, problem.dim))), design)
         evaluator.catch = catch.control
+    elif config.delay:          # every policy selects on the state predicted that far ahead
+        from sapga_ros.policies.classical import ahead
+        catch = ahead(ExemplarPolicy(problem, np.zeros((0, problem.dim))), config.delay)
+        evaluator.catch = catch.control
     opt, history = _start(config, problem, delta, list(initial))
     if config.catch_sigma:
         opt.evolve_catch(catch, config.catch_sigma, config.seed)
@@ -347,7 +363,7 @@ def train_sapga(config: TrainConfig, initial: list[ExemplarPolicy] = (),
 def _best_policy(config: TrainConfig, opt: Optimizer, delta: float, jobs: int,
                  catch: Any = None) -> Any:
     """The best policy so far, with its provenance in ``meta`` (behind ``catch``, the
-    hybrid's LQR, if given)."""
+    hybrid's LQR or the prediction of a policy designed for a delay, if given)."""
     result = opt.result
     if result is None:
         raise ConfigError('the run ended before its first evaluation: no policy to return')

@@ -116,6 +116,7 @@ def check_summary(doc: Any, where: str) -> dict:
     out['redraw'] = schema.boolean(s.get('redraw', False), f'{where}.redraw')
     out['catch_delay'] = schema.integer(s.get('catch_delay', 0), f'{where}.catch_delay', 0,
                                         MAX_DELAY)
+    out['delay'] = schema.integer(s.get('delay', 0), f'{where}.delay', 0, MAX_DELAY)
     return out
 
 

@@ -19,6 +19,7 @@ import numpy as np
 from sapga_ros.analysis.limit import beam_limit
 from sapga_ros.evaluation.evaluator import Evaluator
 from sapga_ros.evaluation.state_selector import StateSelector
+from sapga_ros.policies.classical import ahead
 from sapga_ros.policies.styles import STYLES
 from sapga_ros.optim.operators import random_policy
 from sapga_ros.optim.qlearner import QlParams
@@ -46,6 +47,9 @@ def warm(problems: list[str] | None = None) -> float:
             evaluator.evaluate(policies)
             evaluator.episode(policies[0])
             StateSelector(policies[0]).select(state)            # the policy node's call
+            if style == 'state-action':     # the batch that predicts its lanes (delay)
+                evaluator.evaluate([ahead(p, 1) for p in policies])
+                evaluator.episode(ahead(policies[0], 1))
         # the simulator node's calls
         model_module(problem.model).mdp_step(state, float(problem.actions[0]), problem.params())
         goal_delta(state, *goal_arrays(problem), problem.is_angle)
