@@ -179,7 +179,8 @@ def test_a_delay_beside_a_catch_or_on_a_controller_is_refused():
     for other in (catch, with_catch(policy, catch)):
         with pytest.raises(PolicyFileError, match='only a plain exemplar policy'):
             ahead(other, 1)
-    with pytest.raises(PolicyFileError, match='designed for 1 MDP steps of delay already'):
+    with pytest.raises(PolicyFileError,
+                       match=r'designed for a delay of 1 MDP step\(s\) already'):
         ahead(ahead(policy, 1), 2)
 
 
@@ -274,3 +275,51 @@ def test_experiment_rows_take_a_delay():
                          ({'delay': 17}, r'delay: expected a whole number in \[0, 16\]')):
         with pytest.raises(ConfigError, match=r'set\.experiments\[0\].*' + message):
             _experiment({**row, **bad}, 'set.experiments[0]')
+
+
+def test_a_delay_is_never_dropped_or_ignored(tmp_path):
+    """A delay on a classical or Q-table file is refused, not ignored; pruning unused
+    exemplars keeps the delay (and a hybrid's catch); a delayed file seeding a run of
+    another delay is refused (a plain one may seed a delayed run); a refused --delay names
+    the file."""
+    pr = load_problem('acrobot_hold')
+    classical = json.loads(classical_policy(pr, c=0.1).to_json())
+    classical['delay'] = 1
+    (tmp_path / 'c.json').write_text(json.dumps(classical))
+    q = tmp_path / 'q.json'
+    assert sapga('train', '--problem', 'pendulum', '--method', 'ql', '--steps', '20000',
+                 '--quiet', '--out', q).returncode == 0
+    doc = json.loads(q.read_text())
+    doc['delay'] = 1
+    (tmp_path / 'qd.json').write_text(json.dumps(doc))
+    for name, words in (('c.json', "delay: a classical policy's delay is its controller's"),
+                        ('qd.json', 'delay: a Q-table acts on the state it sees')):
+        r = sapga('eval', tmp_path / name)
+        assert r.returncode == 2 and r.stderr.strip().count('\n') == 0, r.stderr
+        assert f'{tmp_path / name}: {words}' in r.stderr
+    delayed = tmp_path / 'd.json'
+    trained('acrobot').save(tmp_path / 'p.json')
+    delayed.write_text(ahead(policy_from_json((tmp_path / 'p.json').read_text()), 1).to_json())
+    hybrid = tmp_path / 'h.json'
+    hybrid.write_text(with_catch(random_exemplars(pr, 30, np.random.default_rng(1)),
+                                 classical_policy(pr, c=0.1)).to_json())
+    for f in (delayed, hybrid):
+        out = tmp_path / f'pruned-{f.name}'
+        assert sapga('exemplars', f, '--prune-unused', out).returncode == 0
+        pruned, whole = json.loads(out.read_text()), json.loads(f.read_text())
+        assert pruned.get('delay') == whole.get('delay')
+        assert pruned.get('catch') == whole.get('catch')
+        assert len(pruned['exemplars']) < len(whole['exemplars'])
+        ran = [json.loads(sapga('eval', g, '--json').stdout)['return'] for g in (f, out)]
+        assert ran[0] == ran[1]
+    r = sapga('train', '--problem', 'acrobot', '--steps', '20000', '--quiet', '--init',
+              delayed, '--out', tmp_path / 'x.json')
+    assert r.returncode == 2 and 'designed for a delay of 1' in r.stderr
+    assert not (tmp_path / 'x.json').exists()
+    assert sapga('train', '--problem', 'acrobot', '--steps', '20000', '--quiet', '--init',
+                 delayed, '--delay', '1', '--out', tmp_path / 'y.json').returncode == 0
+    assert sapga('train', '--problem', 'acrobot', '--steps', '20000', '--quiet', '--init',
+                 tmp_path / 'p.json', '--delay', '1', '--out',
+                 tmp_path / 'z.json').returncode == 0
+    r = sapga('eval', delayed, '--delay', '2')
+    assert r.returncode == 2 and f'{delayed}: delay: the policy is designed for' in r.stderr

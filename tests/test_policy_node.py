@@ -225,7 +225,8 @@ def test_a_node_with_a_delay_runs_plain_policies_ahead_and_refuses_the_others(
     active = pol.active
     assert active.policy.kind == AHEAD_KIND and active.policy.delay == 1
     assert active.selector.stateful
-    for path, words in ((hybrid, 'only a plain exemplar policy'), (own, 'designed for 2')):
+    for path, words in ((hybrid, 'only a plain exemplar policy'),
+                        (own, 'designed for a delay of 2')):
         result = pol.set_parameters([Parameter('policy_file', value=str(path))])[0]
         assert not result.successful and str(path) in result.reason, result.reason
         assert words in result.reason and pol.active is active

@@ -128,9 +128,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 def cmd_eval(args) -> int:
     from sapga_ros.evaluation.evaluator import run_policy_episode
-    from sapga_ros.policies.classical import ahead
+    from sapga_ros.policies.classical import run_ahead
     from sapga_ros.policies.kinds import load_any_policy, policy_delta
-    policy = ahead(load_any_policy(args.policy), args.delay)
+    policy = run_ahead(load_any_policy(args.policy), args.delay, args.policy)
     delta = policy_delta(policy, args.delta)
     if args.disturbance:
         return _eval_disturbed(args, policy, delta)
@@ -168,6 +168,7 @@ def cmd_exemplars(args) -> int:
 
     from sapga_ros.cli.exemplar_table import exemplar_table, format_table
     from sapga_ros.evaluation.evaluator import run_policy_episode
+    from sapga_ros.policies.classical import same_controller
     from sapga_ros.policies.runnable import load_policy
     from sapga_ros.policies.kinds import policy_delta
     policy = load_policy(args.policy)
@@ -191,7 +192,7 @@ def cmd_exemplars(args) -> int:
     if args.prune_unused:
         check_output_file(Path(args.prune_unused), '--prune-unused')
         keep = ep.used
-        pruned = policy.subset(keep)
+        pruned = same_controller(policy, policy.subset(keep))   # keeps a catch or delay
         pruned.meta = {**policy.meta, 'pruned_from': str(args.policy)}
         pruned.save(args.prune_unused)
         print(f'pruned policy ({int(keep.sum())} exemplars): {args.prune_unused}',

@@ -53,13 +53,13 @@ def cmd_robustness(args: argparse.Namespace) -> int:
     from sapga_ros.evaluation.sweep import sweep
     from sapga_ros.io.jsonfile import dumps
     from sapga_ros.io.atomic import write_inside
-    from sapga_ros.policies.classical import ahead
+    from sapga_ros.policies.classical import run_ahead
     from sapga_ros.policies.kinds import load_any_policy, policy_delta
     from sapga_ros.viz.robustness_plot import curve_figures
     from sim_nodes.disturbance import load_disturbance
     out = Path(args.out)
     check_output_dir(out, '--out')
-    policies = [ahead(load_any_policy(p), args.delay) for p in args.policies]
+    policies = [run_ahead(load_any_policy(p), args.delay, p) for p in args.policies]
     if len({p.problem.name for p in policies}) > 1:
         raise SapgaError('robustness curves compare policies of one problem')
     profiles = [load_disturbance(name) for name in args.disturbance or PROFILES]

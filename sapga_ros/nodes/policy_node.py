@@ -48,7 +48,7 @@ from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
 from sapga_ros.errors import PolicyFileError, SapgaError
-from sapga_ros.policies.classical import ahead
+from sapga_ros.policies.classical import run_ahead
 from sapga_ros.policies.exemplar import ExemplarPolicy
 from sapga_ros.policies.runnable import load_policy, policy_from_json
 from sapga_ros.policies.jsonfile import MAX_POLICY_BYTES
@@ -243,10 +243,7 @@ class PolicyNode(GuardedNode):
 
     def _as_run(self, policy: ExemplarPolicy, source: str) -> ExemplarPolicy:
         """``policy`` (from ``source``) designed for the node's ``delay``, if set."""
-        try:
-            return ahead(policy, self.delay)
-        except PolicyFileError as exc:
-            raise PolicyFileError(f'{source}: {exc}') from None
+        return run_ahead(policy, self.delay, source)
 
     def _load_file(self, path: str) -> None:
         """Load policy file ``path`` in a worker thread; swap it in when it is ready."""

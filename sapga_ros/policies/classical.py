@@ -166,8 +166,8 @@ def ahead(policy: Any, delay: int) -> Any:
     if delay == 0:
         return policy
     if isinstance(policy, ControlledPolicy) and policy.kind == AHEAD_KIND:
-        raise PolicyFileError(f'delay: the policy is designed for {policy.delay} MDP steps of '
-                              'delay already (its file\'s delay)')
+        raise PolicyFileError(f'delay: the policy is designed for a delay of {policy.delay} '
+                              'MDP step(s) already (its file\'s delay)')
     if isinstance(policy, ControlledPolicy) or not isinstance(policy, ExemplarPolicy):
         raise PolicyFileError('delay: only a plain exemplar policy takes one (a hybrid or '
                               'classical policy predicts by its controller\'s own delay; a '
@@ -176,6 +176,22 @@ def ahead(policy: Any, delay: int) -> Any:
     return with_catch(policy, ControlledPolicy(
         policy.problem, np.zeros((0, dim)), kind=AHEAD_KIND, K=np.zeros(dim),
         P=np.zeros((dim, dim)), c=0.0, delay=delay))
+
+
+def run_ahead(policy: Any, delay: int, source: str) -> Any:
+    """``ahead`` for a policy read from ``source`` (a refusal names it)."""
+    try:
+        return ahead(policy, delay)
+    except PolicyFileError as exc:
+        raise PolicyFileError(f'{source}: {exc}') from None
+
+
+def same_controller(policy: ExemplarPolicy, subset: ExemplarPolicy) -> ExemplarPolicy:
+    """``subset`` (some of ``policy``'s exemplars) behind ``policy``'s controller, if it has
+    one (a hybrid's catch, a delay's prediction): what ``policy`` runs, with fewer exemplars."""
+    if isinstance(policy, ControlledPolicy) and policy.kind != KIND:
+        return with_catch(subset, policy)
+    return subset
 
 
 def hybrid_of_valid(policy: ExemplarPolicy, catch: ControlledPolicy,

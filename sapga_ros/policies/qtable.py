@@ -183,4 +183,7 @@ def qtable_from_document(doc: dict, source: str) -> QTable:
         q[int(key)] = [finite(v, f'{source}: q[{key}]') for v in values]
         visited[int(key)] = True
     complete(doc)                           # the fields after the rows
+    if 'delay' in doc:                      # a field of exemplar policies: never ignored
+        raise PolicyFileError(f'{source}: delay: a Q-table acts on the state it sees (only an '
+                              'exemplar policy is designed for a delay)')
     return QTable(pr, q, visited, meta_of(doc, source))

@@ -26,7 +26,11 @@ def policy_from_document(doc: Any, problem: str | Problem | None = None,
         if doc['kind'] != 'classical':
             raise PolicyFileError(f'{source}: kind: {excerpt(doc["kind"])} is not supported '
                                   '(supported: classical)')
-        return classical_from_document(complete(doc), problem, source)
+        doc = complete(doc)
+        if 'delay' in doc:
+            raise PolicyFileError(f'{source}: delay: a classical policy\'s delay is its '
+                                  'controller\'s (controller.delay)')
+        return classical_from_document(doc, problem, source)
     policy = exemplar_from_document(doc, problem, source, controlled=True)
     if 'catch' in doc:            # the hybrid: the LQR catches inside x'Px <= c
         if 'delay' in doc:
