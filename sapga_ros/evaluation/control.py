@@ -43,6 +43,7 @@ import numpy as np
 from sim_nodes.jit import kernel
 
 from sapga_ros.exemplars.selectors import select
+from sapga_ros.policies.styles import STATE_ACTION
 from sim_nodes.models.dispatch import step_lanes
 from sapga_ros.policies.controller_row import (AHEAD, CLASSICAL, DELAY, C, GAINS, HEAD, MODE,
                                                NG, NONE, SWING, SWING_ACROBOT, SWING_CART)
@@ -166,11 +167,12 @@ def choose(style, model, s, ex, ex2, act, val, n, actions, p, inv_range, is_angl
     return j, action, progress
 
 
-def uniform_ahead(ctl: np.ndarray) -> int | None:
-    """d if every controller row is ``AHEAD`` with one delay d, else None: the episode
-    engine's argument that makes a state-action batch predict its lanes side by side (None
-    compiles that code out of the loop)."""
-    if ctl.shape[0] == 0 or ctl.shape[1] <= DELAY or np.any(ctl[:, MODE] != AHEAD):
+def uniform_ahead(ctl: np.ndarray, style: int) -> int | None:
+    """d if the batch is state-action and every controller row is ``AHEAD`` with one delay
+    d, else None: the episode engine's argument that makes a state-action batch predict its
+    lanes side by side (None compiles that code out of the loop)."""
+    if style != STATE_ACTION or ctl.shape[0] == 0 or ctl.shape[1] <= DELAY or \
+            np.any(ctl[:, MODE] != AHEAD):
         return None
     delays = ctl[:, DELAY]
     return int(delays[0]) if np.all(delays == delays[0]) else None

@@ -25,7 +25,7 @@ from sapga_ros.exemplars.distance import (normalize_padded_into, normalize_rows_
 from sapga_ros.policies.batch import PolicyBatch, flat_of
 from sapga_ros.policies.episode import Episode
 from sapga_ros.policies.exemplar import ExemplarPolicy
-from sapga_ros.policies.styles import STATE_ACTION, STYLES
+from sapga_ros.policies.styles import STYLES
 from sim_nodes.disturbance import Disturbance
 from sim_nodes.models import model_id
 from sim_nodes.goal import alt_goal_arrays, goal_arrays, hold_measures
@@ -182,7 +182,7 @@ class Evaluator:
             shares = max(1, min(count, numba.get_num_threads() * BLOCKS_PER_THREAD))
             ctl = self.controls(policies)
             evaluate_batch(self.model, style, ex, ex2, act, val, lengths, *self._consts(),
-                           ctl, _ahead(ctl, style), self.dist, draws, shares,
+                           ctl, uniform_ahead(ctl, style), self.dist, draws, shares,
                            returns, steps, dstar, dstar_alt, reached, used, first, held,
                            contacts)
         rows = getattr(policies, 'rows', None)
@@ -209,20 +209,14 @@ class Evaluator:
         tr_reward = np.zeros(self.n_step)
         ctl = self.controls([policy])
         run_share(self.model, style, ex, ex2, act, val, lengths, 0, 1, *self._consts(),
-                  ctl, _ahead(ctl, style), self.dist, _keys([key], 1), returns, steps, dstar,
-                  dstar_alt, reached, used, first, held, contacts, tr_state, tr_idx, tr_act,
+                  ctl, uniform_ahead(ctl, style), self.dist, _keys([key], 1), returns, steps,
+                  dstar, dstar_alt, reached, used, first, held, contacts, tr_state, tr_idx, tr_act,
                   tr_reward)
         n = int(steps[0])
         return Episode(tr_state[:n + 1].copy(), tr_act[:n].copy(), tr_idx[:n].copy(),
                        tr_reward[:n].copy(), float(returns[0]), n, float(dstar[0]),
                        bool(reached[0]), used[0, :len(policy)].copy(), int(first[0]),
                        int(held[0]), int(contacts[0]))
-
-
-def _ahead(ctl: np.ndarray, style: int) -> int | None:
-    """The engine's ``ahead``: the one delay of a state-action batch whose every policy
-    selects on the predicted state, else None."""
-    return uniform_ahead(ctl) if style == STATE_ACTION else None
 
 
 def run_policy_episode(policy: Any, delta: float, max_steps: int | None = None) -> Episode:

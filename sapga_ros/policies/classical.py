@@ -165,7 +165,7 @@ def ahead(policy: Any, delay: int) -> Any:
         raise PolicyFileError(reason)
     if delay == 0:
         return policy
-    if isinstance(policy, ControlledPolicy) and policy.kind == AHEAD_KIND:
+    if selector_delay(policy):
         raise PolicyFileError(f'delay: the policy is designed for a delay of {policy.delay} '
                               'MDP step(s) already (its file\'s delay)')
     if isinstance(policy, ControlledPolicy) or not isinstance(policy, ExemplarPolicy):
@@ -176,6 +176,12 @@ def ahead(policy: Any, delay: int) -> Any:
     return with_catch(policy, ControlledPolicy(
         policy.problem, np.zeros((0, dim)), kind=AHEAD_KIND, K=np.zeros(dim),
         P=np.zeros((dim, dim)), c=0.0, delay=delay))
+
+
+def selector_delay(policy: Any) -> int:
+    """The delay a policy's exemplar selector is designed for (``ahead``; 0: none)."""
+    return policy.delay if isinstance(policy, ControlledPolicy) and \
+        policy.kind == AHEAD_KIND else 0
 
 
 def run_ahead(policy: Any, delay: int, source: str) -> Any:

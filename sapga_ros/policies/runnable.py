@@ -12,7 +12,7 @@ import os
 from typing import Any
 
 from sapga_ros.errors import PolicyFileError
-from sapga_ros.policies.classical import ahead, attach_catch, classical_from_document
+from sapga_ros.policies.classical import attach_catch, classical_from_document, run_ahead
 from sapga_ros.policies.exemplar import BULK, ExemplarPolicy, exemplar_from_document
 from sapga_ros.policies.jsonfile import as_text, excerpt, read_policy_text
 from sapga_ros.policies.jsonstream import complete, read_document
@@ -38,10 +38,7 @@ def policy_from_document(doc: Any, problem: str | Problem | None = None,
                                   '(catch.delay)')
         return attach_catch(policy, doc['catch'], source)
     if 'delay' in doc:            # the selector acts on the state predicted that far ahead
-        try:
-            return ahead(policy, doc['delay'])
-        except PolicyFileError as e:
-            raise PolicyFileError(f'{source}: {e}') from None
+        return run_ahead(policy, doc['delay'], source)
     return policy
 
 
