@@ -215,6 +215,52 @@ def test_a_packed_batch_holds_each_policy_as_packed_alone(problem, style):
         assert val[k, :n].tobytes() == alone[4][0].tobytes() and not val[k, n:].any()
 
 
+@pytest.mark.parametrize('style', list(STYLES))
+def test_packing_into_reused_buffers_gives_the_fresh_arrays(problem, style):
+    """``evaluate`` packs into buffers kept from its last call: after a larger batch with
+    other values has filled them, a smaller batch of mixed lengths packs to exactly the
+    fresh arrays (padding zeroed, nothing left of the larger batch)."""
+    rng = np.random.default_rng(11)
+    big = [random_exemplars(problem, 60, rng, style) for _ in range(25)]
+    small = [random_exemplars(problem, int(n), rng, style) for n in rng.integers(1, 30, 9)]
+    evaluator = Evaluator(problem)
+    scratch = type(evaluator._scratch)()
+    evaluator.pack(big, scratch)
+    reused = evaluator.pack(small, scratch)
+    fresh = evaluator.pack(small)
+    assert reused[0] == fresh[0]
+    for a, b in zip(reused[1:], fresh[1:]):
+        assert a.shape == b.shape and a.dtype == b.dtype and a.tobytes() == b.tobytes()
+
+
+def test_evaluate_results_do_not_depend_on_the_batches_before_or_other_threads(problem):
+    """One evaluator, its buffers reused: each batch's results equal a fresh evaluator's,
+    whatever it evaluated before, and two threads evaluating different batches on it at
+    once each get their own batch's results (each thread packs into its own buffers)."""
+    import threading
+    rng = np.random.default_rng(12)
+    batches = [random_policies(problem, rng, n) for n in (40, 7, 23)]
+    expected = [Evaluator(problem, MIXED_DELTA[problem.name]).evaluate(b) for b in batches]
+    shared = Evaluator(problem, MIXED_DELTA[problem.name])
+    for batch, want in zip(batches + batches[::-1], expected + expected[::-1]):
+        got = shared.evaluate(batch)
+        assert got.returns.tobytes() == want.returns.tobytes()
+        assert got.steps.tolist() == want.steps.tolist()
+        assert [u.tolist() for u in got.used] == [u.tolist() for u in want.used]
+    results: dict[int, list] = {0: [], 1: []}
+
+    def work(i: int) -> None:
+        for _ in range(6):
+            results[i].append(shared.evaluate(batches[i]).returns.tobytes())
+    threads = [threading.Thread(target=work, args=(i,)) for i in (0, 1)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    for i in (0, 1):
+        assert results[i] == [expected[i].returns.tobytes()] * 6
+
+
 def test_empty_batch_gives_empty_results(problem):
     """Evaluating no policies returns empty arrays and simulates nothing."""
     result = Evaluator(problem).evaluate([])

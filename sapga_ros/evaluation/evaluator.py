@@ -10,6 +10,7 @@ policy on K disturbed episodes) is ``sapga_ros.evaluation.robust.RobustEvaluator
 """
 from __future__ import annotations
 
+import threading
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -22,7 +23,7 @@ from sapga_ros.evaluation.control import uniform_ahead
 from sapga_ros.evaluation.engine import BLOCKS_PER_THREAD, evaluate_batch, run_share
 from sapga_ros.exemplars.distance import (normalize_padded_into, normalize_rows_padded_into,
                                           normalize_states, pad_into, pad_rows_into)
-from sapga_ros.policies.batch import PolicyBatch, flat_of
+from sapga_ros.policies.batch import FlatPolicies, PolicyBatch, flat_of
 from sapga_ros.policies.episode import Episode
 from sapga_ros.policies.exemplar import ExemplarPolicy
 from sapga_ros.policies.styles import STYLES
@@ -68,6 +69,50 @@ class RowMarks(Sequence):
         return self.marks[k, :self.lengths[k]].copy()
 
 
+class _Scratch(threading.local):
+    """Arrays a thread's ``Evaluator.evaluate`` packs its batches into, kept from one call
+    to the next.  A batch of 500 policies of 100 exemplars packs some 3 MB; fresh arrays
+    of that size come from the system as new pages each call, and their first touch cost
+    about a twelfth of the whole evaluation (the acrobot, one thread).  Only ``evaluate``
+    packs into them (nothing it returns refers to them); every array is overwritten or
+    zeroed before use, so a batch packs to the same values as into fresh arrays."""
+
+    def __init__(self) -> None:
+        self.arrays: dict[str, np.ndarray] = {}
+
+    def zeros(self, name: str, shape: tuple, dtype=np.float64) -> np.ndarray:
+        """A zeroed array of ``shape`` (a view of this thread's buffer ``name``)."""
+        out = self.empty(name, shape, dtype)
+        out[...] = 0
+        return out
+
+    def empty(self, name: str, shape: tuple, dtype=np.float64) -> np.ndarray:
+        """An array of ``shape`` with any contents (a view of buffer ``name``)."""
+        size = int(np.prod(shape))
+        held = self.arrays.get(name)
+        if held is None or held.size < size or held.dtype != dtype:
+            held = self.arrays[name] = np.empty(size, dtype=dtype)
+        return held[:size].reshape(shape)
+
+
+def _flat_into(policies: list[ExemplarPolicy], scratch: _Scratch) -> FlatPolicies:
+    """``flat_of(policies)`` with its arrays in ``scratch`` (the same values; no second
+    states but for a style that has them, as ``pack`` reads them)."""
+    first = policies[0]
+    lengths = np.fromiter((len(p.states) for p in policies), dtype=np.int64,
+                          count=len(policies))
+    n = int(lengths.sum())
+    dim = first.states.shape[1]
+    states = np.concatenate([p.states for p in policies],
+                            out=scratch.empty('flat_states', (n, dim)))
+    actions = np.concatenate([p.actions for p in policies],
+                             out=scratch.empty('flat_actions', (n,), first.actions.dtype))
+    values = np.concatenate([p.values for p in policies], out=scratch.empty('flat_values', (n,)))
+    states2 = np.concatenate([p.states2 for p in policies]) \
+        if STYLES[first.style].uses('state2') else np.zeros((n, 0))  # not packed otherwise
+    return FlatPolicies(first.problem, first.style, states, actions, values, states2, lengths)
+
+
 def set_jobs(jobs: int | None) -> int:
     """Use ``jobs`` threads for batch evaluation (None or 0: every core); return the count."""
     n = numba.config.NUMBA_NUM_THREADS
@@ -102,6 +147,7 @@ class Evaluator:
                      problem.fail_charge)     # NaN: an end-stop contact does not end it
         self.disturbance = disturbance or Disturbance()
         self.dist = self.disturbance.pack(problem)
+        self._scratch = _Scratch()
 
     def _consts(self):
         return (self.s0, self.params, self.inv_range, self.is_angle, *self.goal, self.delta,
@@ -120,26 +166,32 @@ class Evaluator:
                 ctl[k, :len(r)] = r
         return ctl
 
-    def pack(self, policies: list[ExemplarPolicy]):
+    def pack(self, policies: list[ExemplarPolicy], scratch: _Scratch | None = None):
         """(style number, ex, ex2, act, val, lengths): padded (P, D, Lmax) normalised
         states, (P, D, Lmax or 1) second states, (P, Lmax) action values and values, (P,)
-        lengths.  A ``PolicyBatch`` is packed from its flat groups."""
+        lengths.  A ``PolicyBatch`` is packed from its flat groups.  With ``scratch`` the
+        arrays are views of its buffers (valid until the thread's next pack into it)."""
         if isinstance(policies, PolicyBatch):
             groups = policies.groups()
         else:
             styles = {p.style for p in policies}
             if len(styles) > 1:
                 raise SapgaError(f'one batch holds one exemplar style, got {sorted(styles)}')
-            groups = [flat_of(policies)] if policies else []
+            flat = flat_of if scratch is None else (lambda ps: _flat_into(ps, scratch))
+            groups = [flat(policies)] if policies else []
         style = STYLES[groups[0].style if groups else 'state-action']
         count, dim = sum(len(g) for g in groups), self.problem.dim
         lengths = np.concatenate([g.lengths for g in groups]) if groups else \
             np.zeros(0, dtype=np.int64)
         lmax = int(lengths.max()) if count else 1
-        ex = np.zeros((count, dim, lmax))
-        ex2 = np.zeros((count, dim, lmax if style.uses('state2') else 1))
-        act = np.zeros((count, lmax))
-        val = np.zeros((count, lmax))
+
+        def zeros(shape: tuple, name: str) -> np.ndarray:
+            return np.zeros(shape) if scratch is None else scratch.zeros(name, shape)
+
+        ex = zeros((count, dim, lmax), 'ex')
+        ex2 = zeros((count, dim, lmax if style.uses('state2') else 1), 'ex2')
+        act = zeros((count, lmax), 'act')
+        val = zeros((count, lmax), 'val')
         # Each group's exemplars, normalised into their padded slots in one compiled call:
         # the same ``normalize_into`` per row as each policy alone.
         inv = 1.0 / self.ranges
@@ -169,7 +221,7 @@ class Evaluator:
         """Evaluate every policy once (in parallel on the configured threads), disturbed by
         the draws of ``keys`` (P, 4) (None: all zero)."""
         count = len(policies)
-        style, ex, ex2, act, val, lengths = self.pack(policies)
+        style, ex, ex2, act, val, lengths = self.pack(policies, self._scratch)
         returns = np.empty(count)
         steps = np.empty(count, dtype=np.int64)
         dstar = np.empty(count)
