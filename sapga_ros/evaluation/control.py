@@ -45,8 +45,9 @@ from sim_nodes.jit import kernel
 from sapga_ros.exemplars.selectors import select
 from sapga_ros.policies.styles import STATE_ACTION
 from sim_nodes.models.dispatch import step_lanes
-from sapga_ros.policies.controller_row import (AHEAD, CLASSICAL, DELAY, C, GAINS, HEAD, MODE,
-                                               NG, NONE, SWING, SWING_ACROBOT, SWING_CART)
+from sapga_ros.policies.controller_row import (AHEAD, CATCH, CLASSICAL, DELAY, C, GAINS, HEAD,
+                                               MODE, NG, NONE, SWING, SWING_ACROBOT,
+                                               SWING_CART)
 
 
 @kernel(inline='always')
@@ -173,6 +174,18 @@ def uniform_ahead(ctl: np.ndarray, style: int) -> int | None:
     lanes side by side (None compiles that code out of the loop)."""
     if style != STATE_ACTION or ctl.shape[0] == 0 or ctl.shape[1] <= DELAY or \
             np.any(ctl[:, MODE] != AHEAD):
+        return None
+    delays = ctl[:, DELAY]
+    return int(delays[0]) if np.all(delays == delays[0]) else None
+
+
+def uniform_catch(ctl: np.ndarray, style: int) -> int | None:
+    """d if the batch is state-action and every controller row is ``CATCH`` (a hybrid)
+    designed for one delay d, else None: the episode engine's argument that asks the
+    hybrids' LQR lane by lane and searches the other lanes' exemplars together (None
+    compiles that code out of the loop)."""
+    if style != STATE_ACTION or ctl.shape[0] == 0 or ctl.shape[1] <= DELAY or \
+            np.any(ctl[:, MODE] != CATCH):
         return None
     delays = ctl[:, DELAY]
     return int(delays[0]) if np.all(delays == delays[0]) else None

@@ -19,7 +19,7 @@ import numba
 import numpy as np
 
 from sapga_ros.errors import SapgaError
-from sapga_ros.evaluation.control import uniform_ahead
+from sapga_ros.evaluation.control import uniform_ahead, uniform_catch
 from sapga_ros.evaluation.engine import BLOCKS_PER_THREAD, evaluate_batch, run_share
 from sapga_ros.exemplars.distance import (normalize_padded_into, normalize_rows_padded_into,
                                           normalize_states, pad_into, pad_rows_into)
@@ -234,9 +234,9 @@ class Evaluator:
             shares = max(1, min(count, numba.get_num_threads() * BLOCKS_PER_THREAD))
             ctl = self.controls(policies)
             evaluate_batch(self.model, style, ex, ex2, act, val, lengths, *self._consts(),
-                           ctl, uniform_ahead(ctl, style), self.dist, draws, shares,
-                           returns, steps, dstar, dstar_alt, reached, used, first, held,
-                           contacts)
+                           ctl, uniform_ahead(ctl, style), uniform_catch(ctl, style), self.dist,
+                           draws, shares, returns, steps, dstar, dstar_alt, reached, used,
+                           first, held, contacts)
         rows = getattr(policies, 'rows', None)
         if rows is not None:            # a batch held in another order: back to its own
             returns, steps, dstar, dstar_alt, reached, used, lengths, first, held, \
@@ -261,9 +261,9 @@ class Evaluator:
         tr_reward = np.zeros(self.n_step)
         ctl = self.controls([policy])
         run_share(self.model, style, ex, ex2, act, val, lengths, 0, 1, *self._consts(),
-                  ctl, uniform_ahead(ctl, style), self.dist, _keys([key], 1), returns, steps,
-                  dstar, dstar_alt, reached, used, first, held, contacts, tr_state, tr_idx, tr_act,
-                  tr_reward)
+                  ctl, uniform_ahead(ctl, style), uniform_catch(ctl, style), self.dist,
+                  _keys([key], 1), returns, steps, dstar, dstar_alt, reached, used, first, held,
+                  contacts, tr_state, tr_idx, tr_act, tr_reward)
         n = int(steps[0])
         return Episode(tr_state[:n + 1].copy(), tr_act[:n].copy(), tr_idx[:n].copy(),
                        tr_reward[:n].copy(), float(returns[0]), n, float(dstar[0]),

@@ -3,7 +3,8 @@
 ``make venv`` runs it after installing, so the first ``sapga`` command of a new checkout
 loads compiled code instead of compiling in silence (``sim_nodes.jit`` says why a checkout
 compiles once).  A few tiny runs call every kernel with the argument types real runs use:
-each problem's batch and traced episodes in every exemplar style, a short SAP-GA and
+each problem's batch and traced episodes in every exemplar style (and the state-action
+batches that predict their lanes or hand over to a catch), a short SAP-GA and
 Q-learning training run, the model step the ROS simulator takes (also on a disturbed
 plant, ``sim_nodes.disturbance.Plant``), and a small physical-limit search.  On a warm
 cache it only loads the cached code.
@@ -19,7 +20,9 @@ import numpy as np
 from sapga_ros.analysis.limit import beam_limit
 from sapga_ros.evaluation.evaluator import Evaluator
 from sapga_ros.evaluation.state_selector import StateSelector
-from sapga_ros.policies.classical import ahead
+from sapga_ros.evaluation.classical_design import classical_policy
+from sapga_ros.errors import SapgaError
+from sapga_ros.policies.classical import ahead, with_catch
 from sapga_ros.policies.styles import STYLES
 from sapga_ros.optim.operators import random_policy
 from sapga_ros.optim.qlearner import QlParams
@@ -32,6 +35,14 @@ from sim_nodes.models import model_module
 from sim_nodes.problem import load_problem, problem_names
 
 SAPGA = SapgaParams(n_pop=4, n_child=2, l_min=3, l_max=6)
+
+
+def catch_design(problem):
+    """An LQR catch for ``problem`` (region x'Px <= 1), None where it has none."""
+    try:
+        return classical_policy(problem, c=1.0)
+    except SapgaError:
+        return None
 
 
 def warm(problems: list[str] | None = None) -> float:
@@ -50,6 +61,10 @@ def warm(problems: list[str] | None = None) -> float:
             if style == 'state-action':     # the batch that predicts its lanes (delay)
                 evaluator.evaluate([ahead(p, 1) for p in policies])
                 evaluator.episode(ahead(policies[0], 1))
+                design = catch_design(problem)  # hybrids: their catches asked lane by lane
+                if design is not None:
+                    evaluator.evaluate([with_catch(p, design) for p in policies])
+                    evaluator.episode(with_catch(policies[0], design))
         # the simulator node's calls
         model_module(problem.model).mdp_step(state, float(problem.actions[0]), problem.params())
         goal_delta(state, *goal_arrays(problem), problem.is_angle)
