@@ -214,24 +214,30 @@ def test_bad_training_delays_are_refused_before_anything_runs(changes, message):
 
 def test_eval_delay_on_the_command_line(tmp_path):
     """sapga eval --delay 1 runs a plain policy file as designed for the delay (under
-    latency: the undelayed episode one step later); on a Q-table, a hybrid or a policy
-    with a delay of its own, exit 2 and one line."""
+    latency: the undelayed episode one step later), a file designed for that delay as it is;
+    on a Q-table, a hybrid or a policy designed for another delay, exit 2 and one line.
+    The JSON says the delay run."""
     out = tmp_path / 'p.json'
     trained('acrobot').save(out)
     r = sapga('eval', out, '--delta', '0.1', '--disturbance', 'latency', '--episodes', '1',
               '--delay', '1', '--json')
     assert r.returncode == 0, r.stderr
-    assert json.loads(r.stdout)['success_rate'] == 1.0
+    assert json.loads(r.stdout)['success_rate'] == 1.0 and json.loads(r.stdout)['delay'] == 1
     r = sapga('eval', out, '--delta', '0.1', '--disturbance', 'latency', '--episodes', '1',
               '--json')
-    assert json.loads(r.stdout)['success_rate'] == 0.0
+    assert json.loads(r.stdout)['success_rate'] == 0.0 and json.loads(r.stdout)['delay'] == 0
     delayed = tmp_path / 'd.json'
     delayed.write_text(ahead(policy_from_json(out.read_text()), 1).to_json())
+    as_file, as_asked = (sapga('eval', delayed, '--delta', '0.1', '--disturbance', 'latency',
+                               '--episodes', '1', '--json', *extra) for extra in
+                         ((), ('--delay', '1')))    # its own delay asked again: the same run
+    assert as_file.returncode == as_asked.returncode == 0, as_asked.stderr
+    assert as_file.stdout == as_asked.stdout and json.loads(as_file.stdout)['delay'] == 1
     q = tmp_path / 'q.json'
     assert sapga('train', '--problem', 'pendulum', '--method', 'ql', '--steps', '20000',
                  '--quiet', '--out', q).returncode == 0
-    for f in (delayed, q):
-        r = sapga('eval', f, '--delay', '1')
+    for f, d in ((delayed, '2'), (q, '1')):
+        r = sapga('eval', f, '--delay', d)
         assert r.returncode == 2 and 'Traceback' not in r.stderr
         assert r.stderr.strip().count('\n') == 0 and 'delay: ' in r.stderr, r.stderr
     r = sapga('eval', out, '--delay', '99')
@@ -323,3 +329,23 @@ def test_a_delay_is_never_dropped_or_ignored(tmp_path):
                  tmp_path / 'z.json').returncode == 0
     r = sapga('eval', delayed, '--delay', '2')
     assert r.returncode == 2 and f'{delayed}: delay: the policy is designed for' in r.stderr
+
+
+def test_a_hybrid_seeds_only_a_run_behind_its_own_catch(tmp_path):
+    """A hybrid file seeding a run without a catch, or behind a catch designed for another
+    delay, is refused with one line naming the file and what to give (its exemplars were
+    evolved behind its catch); behind the same catch it seeds the run."""
+    pr = load_problem('acrobot_hold')
+    hybrid = tmp_path / 'h.json'
+    hybrid.write_text(with_catch(random_exemplars(pr, 5, np.random.default_rng(2)),
+                                 classical_policy(pr, c=0.1, delay=2)).to_json())
+    base = ('train', '--problem', 'acrobot_hold', '--steps', '20000', '--quiet', '--init',
+            hybrid)
+    for extra in ((), ('--catch', 'lqr'), ('--catch', 'lqr', '--catch-delay', '1')):
+        r = sapga(*base, *extra, '--out', tmp_path / 'x.json')
+        assert r.returncode == 2 and r.stderr.strip().count('\n') == 0, r.stderr
+        assert f'{hybrid}: a hybrid whose catch is designed for a delay of 2' in r.stderr
+        assert '--catch lqr --catch-delay 2' in r.stderr and not (tmp_path / 'x.json').exists()
+    r = sapga(*base, '--catch', 'lqr', '--catch-delay', '2', '--out', tmp_path / 'y.json')
+    assert r.returncode == 0, r.stderr
+    assert json.loads((tmp_path / 'y.json').read_text())['catch']['delay'] == 2

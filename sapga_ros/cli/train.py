@@ -88,7 +88,7 @@ class _Progress:
 
 
 def cmd_train(args: argparse.Namespace) -> int:
-    from sapga_ros.policies.classical import selector_delay
+    from sapga_ros.policies.classical import catch_delay, selector_delay
     from sapga_ros.policies.runnable import load_policy
     from sapga_ros.training.loop import train, write_log
     from sim_nodes.problem import load_problem
@@ -107,6 +107,13 @@ def cmd_train(args: argparse.Namespace) -> int:
         if delay and delay != config.delay:     # a file's delay is never dropped unsaid
             raise SapgaError(f'{f}: designed for a delay of {delay} MDP step(s); this run: '
                              f'{config.delay} (--delay {delay} to train for it)')
+        catch = catch_delay(policy)             # nor a hybrid's catch
+        if catch is not None and (config.catch != 'lqr' or catch != config.catch_delay):
+            raise SapgaError(f'{f}: a hybrid whose catch is designed for a delay of {catch} '
+                             'MDP step(s); this run: ' + (
+                                 f'a catch designed for {config.catch_delay}'
+                                 if config.catch == 'lqr' else 'no catch') +
+                             f' (--catch lqr --catch-delay {catch} to train behind it)')
     progress = _Progress(config.steps, args.quiet)
     received: list[int] = []
 

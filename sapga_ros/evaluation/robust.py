@@ -19,6 +19,7 @@ import numpy as np
 
 from sapga_ros.errors import ConfigError
 from sapga_ros.evaluation.evaluator import BatchResult, Evaluator
+from sapga_ros.policies.classical import selector_delay
 from sim_nodes.disturbance import Disturbance, load_disturbance
 from sim_nodes.draws import HELD_OUT, TRAINING
 STAT_RE = re.compile(r'^(mean|q(\d{1,2}))$')
@@ -111,7 +112,8 @@ def evaluate_robust(evaluator, policies: list, robust: Robust):
 def episodes_summary(evaluator, policy, robust: Robust, purpose: int = HELD_OUT) -> dict:
     """Robustness of one policy over ``robust.episodes`` disturbed episodes (drawn with
     ``purpose``): success rate (entered S_delta; hold problems: hold fraction >= 0.9),
-    hold fraction and delta* distributions, rail contacts."""
+    hold fraction and delta* distributions, rail contacts; ``delay``: the actuation delay
+    the policy's exemplar selector is designed for (0: it acts on the state it sees)."""
     from sim_nodes.goal import hold_measures
     k = robust.episodes
     r = _each_episode(evaluator, [policy] * k, robust.keys(1, purpose))
@@ -126,7 +128,8 @@ def episodes_summary(evaluator, policy, robust: Robust, purpose: int = HELD_OUT)
                 'q10': float(np.quantile(a, 0.1)), 'median': float(np.median(a)),
                 'q90': float(np.quantile(a, 0.9)), 'max': float(np.max(a))}
     return {'disturbance': evaluator.disturbance.name, 'episodes': k, 'seed': robust.seed,
-            'delta': evaluator.delta, 'success_rate': float(np.mean(success)),
+            'delta': evaluator.delta, 'delay': selector_delay(policy),
+            'success_rate': float(np.mean(success)),
             'success': 'hold_fraction >= 0.9' if hold_task else 'entered S_delta',
             'entered_rate': float(np.mean(r.first_entry > 0)),
             'hold_fraction': spread(fraction), 'delta_star': spread(r.delta_star),

@@ -12,8 +12,9 @@ A via-point policy starts its list again whenever the state is the problem's ini
 (every episode starts there).
 
 Parameters (``policy_params.py``; ``policy_node --help`` prints them with their ranges):
-``problem``, ``policy_file``, ``trainer_service``, ``load_timeout``, ``markers``,
-``qos_profile``, and the mapping onto a robot that is not ours (``joint_mapping.py``): its
+``problem``, ``policy_file``, ``trainer_service``, ``load_timeout``, ``delay`` (every plain
+policy run as designed for that actuation delay), ``markers``, ``qos_profile``, and the
+mapping onto a robot that is not ours (``joint_mapping.py``): its
 joint names, angle offsets and directions, velocities from finite differences when its
 ``JointState`` has none, and the command as a ``std_msgs/Float64MultiArray`` effort array.
 

@@ -158,12 +158,15 @@ def with_catch(policy: ExemplarPolicy, catch: ControlledPolicy,
 def ahead(policy: Any, delay: int) -> Any:
     """``policy`` designed for ``delay`` MDP steps of actuation delay: its selector acts on
     the state predicted that far ahead from the commands in flight (the nominal model's
-    MDP step); ``delay`` 0: ``policy`` itself, whatever its kind.  Only a plain exemplar
-    policy takes a delay (a hybrid's or a classical policy's is its controller's)."""
+    MDP step); ``delay`` 0, or the delay it is designed for already: ``policy`` itself.
+    Only a plain exemplar policy takes a delay (a hybrid's or a classical policy's is its
+    controller's)."""
     reason = DELAY.reason(delay)
     if reason:
         raise PolicyFileError(reason)
     if delay == 0:
+        return policy
+    if selector_delay(policy) == delay:   # the delay it is designed for already
         return policy
     if selector_delay(policy):
         raise PolicyFileError(f'delay: the policy is designed for a delay of {policy.delay} '
@@ -182,6 +185,12 @@ def selector_delay(policy: Any) -> int:
     """The delay a policy's exemplar selector is designed for (``ahead``; 0: none)."""
     return policy.delay if isinstance(policy, ControlledPolicy) and \
         policy.kind == AHEAD_KIND else 0
+
+
+def catch_delay(policy: Any) -> int | None:
+    """The delay a hybrid's catch is designed for; None: not a hybrid."""
+    return policy.delay if isinstance(policy, ControlledPolicy) and \
+        policy.kind == 'exemplar' else None
 
 
 def run_ahead(policy: Any, delay: int, source: str) -> Any:
