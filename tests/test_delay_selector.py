@@ -334,7 +334,8 @@ def test_a_delay_is_never_dropped_or_ignored(tmp_path):
 def test_a_hybrid_seeds_only_a_run_behind_its_own_catch(tmp_path):
     """A hybrid file seeding a run without a catch, or behind a catch designed for another
     delay, is refused with one line naming the file and what to give (its exemplars were
-    evolved behind its catch); behind the same catch it seeds the run."""
+    evolved behind its catch); behind the same catch it seeds the run.  A classical file
+    (no exemplars) seeds none."""
     pr = load_problem('acrobot_hold')
     hybrid = tmp_path / 'h.json'
     hybrid.write_text(with_catch(random_exemplars(pr, 5, np.random.default_rng(2)),
@@ -349,3 +350,27 @@ def test_a_hybrid_seeds_only_a_run_behind_its_own_catch(tmp_path):
     r = sapga(*base, '--catch', 'lqr', '--catch-delay', '2', '--out', tmp_path / 'y.json')
     assert r.returncode == 0, r.stderr
     assert json.loads((tmp_path / 'y.json').read_text())['catch']['delay'] == 2
+    classical = tmp_path / 'c.json'
+    classical.write_text(classical_policy(pr, c=0.1, delay=1).to_json())
+    for extra in ((), ('--delay', '1'), ('--catch', 'lqr', '--catch-delay', '1')):
+        r = sapga('train', '--problem', 'acrobot_hold', '--steps', '20000', '--quiet',
+                  '--init', classical, *extra, '--out', tmp_path / 'z.json')
+        assert r.returncode == 2 and r.stderr.strip().count('\n') == 0, r.stderr
+        assert f'{classical}: a classical policy has no exemplars to seed a run' in r.stderr
+    r = sapga('eval', tmp_path / 'y.json', '--json')
+    assert r.returncode == 0 and json.loads(r.stdout)['delay'] == 0   # a hybrid's: its catch's
+
+
+def test_the_report_tables_name_a_rows_delay_catch_and_robust_fitness():
+    """The report's results table names what a row's policies run behind and were trained
+    against, as the console summary and the curves' legends do."""
+    from sapga_ros.training.experiment_report import row_method
+    from sapga_ros.viz.report import _row
+    final = {'achieved': 1, 'runs': 2, 'delta_star_mean': 0.1, 'delta_star_std': 0.0,
+             'best_value_mean': -1.0, 'best_value_std': 0.0}
+    row = {'id': 6, 'problem': 'acrobot', 'delta': 0.02, 'method': 'sapga', 'steps': 1000,
+           'final': final, 'delay': 1, 'disturbance': 'field', 'episodes': 8}
+    words = 'acting 1 step ahead robust (field, K = 8)'
+    assert f'SAP-GA {words} |' in _row(row) and row_method(row) == f'sapga {words}'
+    hybrid = {**row, 'delay': 0, 'disturbance': 'none', 'catch': 'lqr', 'catch_delay': 1}
+    assert 'SAP-GA + LQR catch (delay 1) |' in _row(hybrid)

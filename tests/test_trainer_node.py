@@ -219,17 +219,21 @@ def test_cmaes_runs_and_its_best_policy_is_served(ros, tmp_path):
 
 
 def test_invalid_parameters_are_refused_with_the_reason(ros, tmp_path):
-    """Bad settings fail at start or are refused with the reason; the node keeps serving."""
+    """Bad settings (a policy file that cannot be served among them) fail at start or are
+    refused with the reason; the node keeps serving."""
     with pytest.raises(ConfigError, match='method'):
         ros.start(TrainerNode, params={'method': 'ppo'})
     for delta in (math.nan, -1.0):          # no sentinel: only a delta the run can use
         with pytest.raises(ConfigError, match=rf'delta: expected a number in \[0, 1e9\], '
                                               rf'got {delta}'):
             ros.start(TrainerNode, params={'delta': delta}, node_name=f'bad_{delta != delta}')
-    trainer = ros.start(TrainerNode, params={'policy_file': str(tmp_path / 'missing.json')})
+    with pytest.raises(ConfigError, match=r'policy_file: .*missing\.json: cannot read'):
+        ros.start(TrainerNode, params={'policy_file': str(tmp_path / 'missing.json')},
+                  node_name='bad_file')
+    trainer = ros.start(TrainerNode)
     client = ros.start(Client)
     response = ros.call(client.get_policy, Trigger.Request())
-    assert not response.success and 'missing.json: cannot read' in response.message
+    assert not response.success and 'no policy yet' in response.message
     assert trainer.train_config().delta == load_problem('acrobot').default_delta
     for name, value in [('steps', 0), ('n_pop', 1), ('delta', math.inf), ('delta', -1.0),
                         ('jobs', -1), ('method', 'x'),

@@ -128,7 +128,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def cmd_eval(args) -> int:
     from sapga_ros.evaluation.evaluator import run_policy_episode
-    from sapga_ros.policies.classical import run_ahead
+    from sapga_ros.policies.classical import run_ahead, selector_delay
     from sapga_ros.policies.kinds import load_any_policy, policy_delta
     policy = run_ahead(load_any_policy(args.policy), args.delay, args.policy)
     delta = policy_delta(policy, args.delta)
@@ -136,7 +136,7 @@ def cmd_eval(args) -> int:
         return _eval_disturbed(args, policy, delta)
     ep = run_policy_episode(policy, delta, args.max_steps)
     if args.json:
-        print(dumps(ep.summary()))
+        print(dumps({**ep.summary(), 'delay': selector_delay(policy)}))
     else:
         reached = 'reached' if ep.reached else 'did not reach'
         print(f'{policy.problem.name}: return {ep.ret:.6f}, delta* {ep.delta_star:.6f}, '

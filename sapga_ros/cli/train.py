@@ -88,7 +88,7 @@ class _Progress:
 
 
 def cmd_train(args: argparse.Namespace) -> int:
-    from sapga_ros.policies.classical import catch_delay, selector_delay
+    from sapga_ros.policies.classical import catch_delay, is_classical, selector_delay
     from sapga_ros.policies.runnable import load_policy
     from sapga_ros.training.loop import train, write_log
     from sim_nodes.problem import load_problem
@@ -103,6 +103,8 @@ def cmd_train(args: argparse.Namespace) -> int:
         if policy.style != config.params.style:
             raise SapgaError(f'{f}: a {policy.style} policy cannot seed a '
                              f'{config.params.style} run (--style {policy.style})')
+        if is_classical(policy):                # no exemplars, a controller of its own
+            raise SapgaError(f'{f}: a classical policy has no exemplars to seed a run')
         delay = selector_delay(policy)
         if delay and delay != config.delay:     # a file's delay is never dropped unsaid
             raise SapgaError(f'{f}: designed for a delay of {delay} MDP step(s); this run: '

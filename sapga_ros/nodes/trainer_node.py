@@ -24,7 +24,8 @@ requests is answered in full: a ``stop`` waiting for its round holds no other re
 ``train`` and ``stop`` are serialised (one run at a time; a stop answers about its run):
 
 * ``get_policy``: ``message`` = the JSON document of the most recent of: the
-  ``policy_file``, the best policy of the current or last SAP-GA run.  ``success`` false with
+  ``policy_file`` (one that cannot be served at start stops the node with one line naming
+  it, exit 2), the best policy of the current or last SAP-GA run.  ``success`` false with
   the reason when there is none, and once a Q-learning run has started (a Q-table is no
   exemplar policy: the policy node cannot run it; ``sapga eval`` runs its ``out`` file).
 * ``train``: starts a run with the current parameters; refused while one is running.
@@ -125,10 +126,8 @@ class TrainerNode(LifecycleNode):
         if policy_file and not self.managed:
             try:
                 self._serve_file(policy_file)
-            except SapgaError as exc:        # keep running, serving nothing, saying why
-                self.get_logger().error(f'policy_file not served: {exc}')
-                self._served = Served(None, '', f'no policy yet: policy_file not served '
-                                                f'({exc})')
+            except SapgaError as exc:        # a user error at start: one line, exit 2
+                raise ConfigError(f'{self.get_name()}: policy_file: {exc}') from None
 
         self._diag_pub = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         # A stop waits for the round to end; with the executable's multi-threaded executor

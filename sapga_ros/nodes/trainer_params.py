@@ -29,8 +29,9 @@ class NodeSettings:
 
     out: str = param('', 'best policy file to write (its .log.csv beside it); empty: none')
     train_on_start: bool = param(False, 'start a run when the node starts')
-    policy_file: str = param('', 'policy served on get_policy until training has a best; '
-                             'empty: none')
+    policy_file: str = param('', 'policy served on get_policy until training has a best (one '
+                             'that cannot be served at start: one line, exit 2); empty: '
+                             'none')
     diagnostics_period: float = param(1.0, 'between /diagnostics messages', low=1e-3,
                                       high=3600.0, unit='s')
     log_period: float = param(5.0, 'between progress lines in the log', low=1e-3,

@@ -187,6 +187,11 @@ def selector_delay(policy: Any) -> int:
         policy.kind == AHEAD_KIND else 0
 
 
+def is_classical(policy: Any) -> bool:
+    """Whether ``policy`` is the classical controller (no exemplars)."""
+    return isinstance(policy, ControlledPolicy) and policy.kind == KIND
+
+
 def catch_delay(policy: Any) -> int | None:
     """The delay a hybrid's catch is designed for; None: not a hybrid."""
     return policy.delay if isinstance(policy, ControlledPolicy) and \

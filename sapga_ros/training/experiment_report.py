@@ -204,6 +204,13 @@ def row_method(s: dict) -> str:
     text = s['method']
     if s.get('variant', 'paper') != 'paper':
         text += f" [{s['variant']}]"
+    return text + row_controls(s)
+
+
+def row_controls(s: dict) -> str:
+    """What a row's policies run behind and were trained against, as words after its
+    method: the LQR catch, the delay the selector is designed for, robust fitness."""
+    text = ''
     if s.get('catch', 'none') != 'none':
         text += ' + LQR catch'
         if s.get('catch_delay'):

@@ -18,7 +18,7 @@ from sapga_ros.evaluation.evaluator import Evaluator
 from sapga_ros.analysis.limit_file import delta_text, read_limit
 from sapga_ros.io.atomic import save_figure, write_atomic
 from sapga_ros.policies.runnable import policy_from_document
-from sapga_ros.training.experiment_report import count_text, hold_table
+from sapga_ros.training.experiment_report import count_text, hold_table, row_controls
 from sapga_ros.training.report_files import read_info, read_summary
 from sapga_ros.training.run_files import stored_runs
 
@@ -42,6 +42,7 @@ def _row(s: dict) -> str:
         method += f" ({s['style']})"
     if s['method'] == 'sapga' and s.get('variant', 'paper') != 'paper':
         method += f" [{s['variant']}]"
+    method += row_controls(s)
     alt = ''
     if 'delta_star_alt_mean' in f:
         alt = (f"{_pm(f['delta_star_alt_mean'], f['delta_star_alt_std'], 4)}, achieved "
