@@ -116,3 +116,33 @@ def test_data_files_write_null_and_refuse_a_bare_constant_by_field(tmp_path):
         read_json(path, 10_000)
     assert str(err.value) == (f'{path}: not valid JSON (field runs[1].best: bare NaN, a '
                               'non-finite number)')
+
+
+def test_a_key_given_twice_is_refused_by_every_reader(tmp_path):
+    """A JSON object with a key twice is refused with one line naming it, by the data-file
+    reader and by the policy readers (whole and streamed, top level and nested): a reader
+    keeping the first and one keeping the last would read different documents."""
+    from sapga_ros.errors import PolicyFileError
+    from sapga_ros.policies.exemplar import ExemplarPolicy
+    from sapga_ros.policies.jsonfile import parse_json
+    from sapga_ros.policies.jsonstream import read_document
+    from sapga_ros.policies.runnable import load_policy
+    data = tmp_path / 'summary.json'
+    data.write_text('{"a": 1, "b": {"c": 2, "c": 3}}')
+    with pytest.raises(DataFileError, match="key 'c' given twice"):
+        read_json(data, 10_000)
+    for text in ('{"delay": 1, "delay": 2}', '{"x": [{"y": 1, "y": 1}]}'):
+        with pytest.raises(PolicyFileError, match='given twice'):
+            parse_json(text, 'p.json')
+        with pytest.raises(PolicyFileError, match='given twice'):
+            read_document(text, 'p.json', frozenset({'x'})).complete()
+    problem = load_problem('acrobot')
+    good = tmp_path / 'p.json'
+    ExemplarPolicy(problem, problem.initial_state[None, :], [2]).save(good)
+    doc = good.read_text().rstrip()
+    assert doc.endswith('}')
+    bad = tmp_path / 'twice.json'
+    bad.write_text(doc[:-1] + ', "problem": "pdip"}')
+    with pytest.raises(PolicyFileError, match=r'twice\.json: problem: given twice'):
+        load_policy(bad)
+    assert len(load_policy(good)) == 1

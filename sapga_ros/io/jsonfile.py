@@ -62,6 +62,19 @@ def _untag(obj: dict) -> Any:
     return obj
 
 
+def unique_object(pairs: list[tuple[str, Any]]) -> dict:
+    """A JSON object's dict, refusing a key given twice (``json``'s ``object_pairs_hook``):
+    readers that keep the first or the last of them would read different documents."""
+    doc = dict(pairs)
+    if len(doc) != len(pairs):
+        seen: set[str] = set()
+        for key, _ in pairs:
+            if key in seen:
+                raise ValueError(f'key {key[:60]!r} given twice')
+            seen.add(key)
+    return doc
+
+
 def strict_loads(data: bytes | str, where: str, error: type[Exception] = DataFileError,
                  tagged: bool = False, legacy: bool = False) -> Any:
     """The JSON document of ``data``; ``error`` (one line naming ``where`` and the field) if
@@ -76,7 +89,8 @@ def strict_loads(data: bytes | str, where: str, error: type[Exception] = DataFil
         seen.append(name)
         return _Bare(name)
     try:
-        doc = json.loads(data, parse_constant=bare, object_hook=_untag if tagged else None)
+        doc = json.loads(data, parse_constant=bare, object_pairs_hook=(
+            (lambda pairs: _untag(unique_object(pairs))) if tagged else unique_object))
     except RecursionError:
         raise error(f'{where}: nested too deeply') from None
     except (ValueError, UnicodeDecodeError) as exc:

@@ -10,6 +10,7 @@ from typing import Any
 
 from sapga_ros.errors import PolicyFileError
 from sapga_ros.io.bounded import TooLarge, read_bounded
+from sapga_ros.io.jsonfile import unique_object
 
 MAX_POLICY_BYTES = 64 * 1024 * 1024  # a Q-learning export of 20^4 tiles is ~15 MB
 LIMIT = f'{MAX_POLICY_BYTES // (1024 * 1024)} MB limit'
@@ -104,7 +105,7 @@ def parse_json(data: str | bytes, source: str) -> Any:
     """Parse a JSON document refusing NaN/Infinity and oversized input."""
     text = as_text(data, source)
     try:
-        return json.loads(text, parse_constant=reject_constant)
+        return json.loads(text, parse_constant=reject_constant, object_pairs_hook=unique_object)
     except json.JSONDecodeError as exc:
         raise PolicyFileError(f'{source}: malformed JSON ({exc.msg}, line {exc.lineno} '
                               f'column {exc.colno})') from exc

@@ -21,13 +21,14 @@ from dataclasses import dataclass, field
 from typing import Any, Iterator
 
 from sapga_ros.errors import PolicyFileError
+from sapga_ros.io.jsonfile import unique_object
 from sapga_ros.policies.jsonfile import reject_constant
 
 MAX_FIELD_CHARS = 1024 * 1024   # a field other than the bulk (meta, ...), as text
 MAX_ITEM_CHARS = 64 * 1024      # an item of a bulk field (an exemplar, a Q-table row)
 MAX_FIELDS = 1000               # fields of the top-level object
 MAX_ITEMS = 2_000_000           # items of a bulk field (64 MB hold ~1 M short exemplars)
-_DECODER = json.JSONDecoder(parse_constant=reject_constant)
+_DECODER = json.JSONDecoder(parse_constant=reject_constant, object_pairs_hook=unique_object)
 _WS = re.compile(r'[ \t\n\r]*')
 _SPACE = (' ', '\t', '\n', '\r')
 _CLOSE = {'{': '}', '[': ']'}
@@ -209,9 +210,9 @@ class Document(dict):
                     break
             key, pos = _key(text, pos, source)
             where = f'{source}: {key[:60]}'
+            if key in self:
+                raise PolicyFileError(f'{where}: given twice')
             if key in self.bulk and text.startswith(('[', '{'), pos):
-                if isinstance(self.get(key), Bulk):
-                    raise PolicyFileError(f'{where}: given twice')
                 self[key] = self._pending = Bulk(text, pos, where, source,
                                                  'array' if text[pos] == '[' else 'object')
                 return                     # read on by complete(), once its items are read
