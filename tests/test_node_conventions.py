@@ -236,3 +236,17 @@ def test_every_node_executable_but_the_generic_sim_ships_a_params_file():
         if exe in tables:
             given = yaml.safe_load(path.read_text())['/**']['ros__parameters']
             assert set(given) <= {p.name for p in tables[exe]}, exe
+
+
+def test_the_trainer_refuses_a_bad_start_in_one_line_and_exit_2(tmp_path):
+    """A start-up run it cannot train (train_on_start) and a policy_file it cannot serve
+    each stop the trainer with the reason as its only line (no 'ready' before it), exit 2."""
+    for args, words in (
+            (('-p', 'train_on_start:=true', '-p', 'method:=ql', '-p', 'delay:=1'),
+             'cannot train'),
+            (('-p', f'policy_file:={tmp_path / "missing.json"}'), 'missing.json')):
+        done = run('trainer_node', '--ros-args', '-p', 'problem:=acrobot',
+                   '-p', f'out:={tmp_path / "p.json"}', *args)
+        lines = [line for line in (done.stdout + done.stderr).splitlines() if line.strip()]
+        assert done.returncode == 2 and len(lines) == 1 and words in lines[0], lines
+        assert 'Traceback' not in lines[0]

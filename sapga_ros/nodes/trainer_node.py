@@ -158,13 +158,14 @@ class TrainerNode(LifecycleNode):
         """Answer the services from now on; start a run with ``train_on_start``.  Why that
         run could not start ('' if it did, or none was asked for)."""
         self.active = True
+        if self.get_parameter('train_on_start').value:
+            ok, message = self.start_training()
+            self.active = ok
+            if not ok:
+                return message              # the refusal is the only line
         self.get_logger().info(f'{self.problem.name} trainer: get_policy, train and stop '
                                'ready')
-        if not self.get_parameter('train_on_start').value:
-            return ''
-        ok, message = self.start_training()
-        self.active = ok
-        return '' if ok else message
+        return ''
 
     # lifecycle (managed) --------------------------------------------------------------------
 
