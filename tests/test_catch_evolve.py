@@ -176,3 +176,31 @@ def test_bad_catch_sigma_is_one_line_and_exit_2(args, needle, tmp_path):
     errors = [line for line in r.stderr.splitlines() if 'error' in line]
     assert len(errors) == 1
     assert not (tmp_path / 'p.json').exists()
+
+
+def test_a_hybrid_seed_keeps_its_evolved_region_or_is_refused(tmp_path):
+    """A hybrid seeding a run behind the same catch design starts with its own region (c
+    over the design's) where regions evolve; where they do not, or its LQR is another
+    design's, the run is refused with one line: nothing of the seed is dropped unsaid."""
+    import dataclasses as dc
+    from sapga_ros.errors import ConfigError
+    from sapga_ros.optim.operators import random_exemplars
+    from sapga_ros.policies.classical import with_catch
+    from sapga_ros.training.loop import TrainConfig, _rounds, train
+    pr = load_problem('acrobot_hold')
+    design = classical_policy(pr, delay=1)
+    seed = with_catch(random_exemplars(pr, 5, np.random.default_rng(3)), design, 7.0)
+    base = TrainConfig(problem='acrobot_hold', steps=3_000, jobs=1, catch='lqr',
+                       catch_delay=1, params=SapgaParams(n_pop=4, n_child=2, l_min=3,
+                                                         l_max=6))
+    rounds = _rounds(dc.replace(base, catch_sigma=0.3), [seed])
+    first = next(rounds).population        # before the first generation
+    rounds.close()
+    assert first[0].scale == pytest.approx(7.0, rel=1e-12)
+    assert [m.scale for m in first[1:]] == [1.0] * 3
+    with pytest.raises(ConfigError, match=r'initial policy 0: its catch region is 7 x the '
+                                          r"design's; this run keeps the design's"):
+        train(base, [seed])
+    other = with_catch(seed, classical_policy(pr, delay=0), 1.0)
+    with pytest.raises(ConfigError, match="initial policy 0: its catch is not this run's"):
+        train(base, [other])

@@ -40,15 +40,16 @@ def test_train_achieves_delta_and_writes_policy_and_log(trained):
 
 def test_eval_json_reproduces_the_training_value(trained):
     """``sapga eval --json`` prints return, delta_star, steps, reached equal to what the
-    trainer recorded for the policy, and the hold measures (an episode ending in S_delta
-    enters it at its last step)."""
+    trainer recorded for the policy, the hold measures (an episode ending in S_delta enters
+    it at its last step) and the delay its selector is designed for."""
     out, _ = trained
     r = sapga('eval', out, '--json')
     assert r.returncode == 0, r.stderr
     got = json.loads(r.stdout)
     meta = json.loads(out.read_text())['meta']
     assert set(got) == {'return', 'delta_star', 'steps', 'reached', 'first_entry_step',
-                        'hold_fraction', 'rail_contacts'}
+                        'hold_fraction', 'rail_contacts', 'delay'}
+    assert got['delay'] == 0                # acting on the state it sees
     assert got['return'] == meta['value'] and got['steps'] == meta['steps_to_end']
     assert got['reached'] is True
     assert (got['first_entry_step'], got['hold_fraction'], got['rail_contacts']) == \

@@ -339,7 +339,7 @@ def test_a_hybrid_seeds_only_a_run_behind_its_own_catch(tmp_path):
     pr = load_problem('acrobot_hold')
     hybrid = tmp_path / 'h.json'
     hybrid.write_text(with_catch(random_exemplars(pr, 5, np.random.default_rng(2)),
-                                 classical_policy(pr, c=0.1, delay=2)).to_json())
+                                 classical_policy(pr, delay=2)).to_json())   # the design's
     base = ('train', '--problem', 'acrobot_hold', '--steps', '20000', '--quiet', '--init',
             hybrid)
     for extra in ((), ('--catch', 'lqr'), ('--catch', 'lqr', '--catch-delay', '1')):

@@ -146,3 +146,24 @@ def test_a_key_given_twice_is_refused_by_every_reader(tmp_path):
     with pytest.raises(PolicyFileError, match=r'twice\.json: problem: given twice'):
         load_policy(bad)
     assert len(load_policy(good)) == 1
+
+
+def test_a_q_table_cell_given_twice_is_refused(tmp_path):
+    """A Q-table's cell given twice, as the same key or as two spellings of one number, is
+    refused by the streamed reader, one line naming it."""
+    from sapga_ros.errors import PolicyFileError
+    from sapga_ros.policies.kinds import load_any_policy
+    q = tmp_path / 'q.json'
+    train(TrainConfig(problem='pendulum', method='ql', steps=20_000, jobs=1,
+                      ql=QlParams(chunk_steps=10_000))).policy.save(q)
+    doc = q.read_text()
+    cell = next(iter(json.loads(doc)['q']))
+    at = doc.index(f'"{cell}":')
+    for twin, words in ((cell, f"key '{cell}' given twice"),
+                        ('0' + cell, f'cell {int(cell)} given twice')):
+        bad = tmp_path / f'twice-{len(twin)}.json'
+        bad.write_text(doc[:at] + f'"{twin}": {json.dumps(json.loads(doc)["q"][cell])}, '
+                       + doc[at:])
+        with pytest.raises(PolicyFileError, match=words):
+            load_any_policy(bad)
+    assert load_any_policy(q) is not None

@@ -116,7 +116,7 @@ class Bulk:
 
     def items(self) -> Iterator[tuple[Any, Any]]:
         """(index, item) of an array or (key, item) of an object, in order (at most
-        ``MAX_ITEMS``)."""
+        ``MAX_ITEMS``; an object's key given twice is refused)."""
         text, source = self.text, self.source
         array = self.kind == 'array'
         closing = ']' if array else '}'
@@ -126,11 +126,15 @@ class Bulk:
             return
         self.end = 0
         index = 0
+        seen: set[str] = set()
         while True:
             if array:
                 key = index
             else:
                 key, pos = _key(text, pos, source)
+                if key in seen:               # as ``unique_object`` for a whole document
+                    raise PolicyFileError(f'{self.where}: key {key[:60]!r} given twice')
+                seen.add(key)
             item, pos = _flat(text, pos)           # the common case, fast
             if pos < 0:
                 item, pos = value_at(text, -pos, MAX_ITEM_CHARS, f'{self.where}[{key}]',

@@ -180,6 +180,8 @@ def qtable_from_document(doc: dict, source: str) -> QTable:
             raise PolicyFileError(f'{source}: q: cell {excerpt(key)} is not in 0..{cells - 1}')
         if not isinstance(values, list) or len(values) != len(pr.actions):
             raise PolicyFileError(f'{source}: q[{key}]: expected {len(pr.actions)} numbers')
+        if visited[int(key)]:                # '5' and '05': one cell written twice
+            raise PolicyFileError(f'{source}: q: cell {int(key)} given twice')
         q[int(key)] = [finite(v, f'{source}: q[{key}]') for v in values]
         visited[int(key)] = True
     complete(doc)                           # the fields after the rows

@@ -248,6 +248,35 @@ def train_lanes(configs: list[TrainConfig]) -> list[TrainResult]:
     return [results[i] for i in range(len(runs))]
 
 
+def initial_regions(initial: list, catch: Any, sigma: float) -> list[float]:
+    """Each seed's catch scale (its region's c over the design's) in a run behind
+    ``catch`` (the design as a hybrid): 1 for a plain policy; a hybrid's must have the
+    design's LQR, and a region other than the design's only where regions evolve
+    (``sigma`` > 0) and within their range: nothing of a seed is dropped unsaid."""
+    from sapga_ros.optim.population import SCALE_RANGE
+    from sapga_ros.policies.classical import catch_delay
+    scales = []
+    for i, policy in enumerate(initial):
+        if catch_delay(policy) is None:
+            scales.append(1.0)
+            continue
+        if catch_delay(policy) != catch.delay or not (
+                np.array_equal(policy.K, catch.K) and np.array_equal(policy.P, catch.P)):
+            raise ConfigError(f'initial policy {i}: its catch is not this run\'s (the LQR '
+                              f'of the design for a delay of {catch.delay})')
+        scale = policy.c / catch.c
+        if scale != 1.0 and not sigma:
+            raise ConfigError(f'initial policy {i}: its catch region is {scale:.6g} x the '
+                              'design\'s; this run keeps the design\'s (--catch-sigma > 0 '
+                              'evolves regions, starting from its own)')
+        if not SCALE_RANGE[0] <= scale <= SCALE_RANGE[1]:
+            raise ConfigError(f'initial policy {i}: its catch region is {scale:.6g} x the '
+                              f'design\'s, outside the evolved range [{SCALE_RANGE[0]:g}, '
+                              f'{SCALE_RANGE[1]:g}]')
+        scales.append(float(scale))
+    return scales
+
+
 def _rounds(config: TrainConfig, initial: list[ExemplarPolicy] = (),
             progress: Progress | None = None,
             on_best: Callable[[Any], None] | None = None,
@@ -278,9 +307,14 @@ def _rounds(config: TrainConfig, initial: list[ExemplarPolicy] = (),
         from sapga_ros.policies.classical import ahead
         catch = ahead(ExemplarPolicy(problem, np.zeros((0, problem.dim))), config.delay)
         evaluator.catch = catch.control
+    regions = initial_regions(initial, catch, config.catch_sigma) if config.catch == 'lqr' \
+        else []
     opt, history = _start(config, problem, delta, list(initial))
     if config.catch_sigma:
         opt.evolve_catch(catch, config.catch_sigma, config.seed)
+    if regions and not config.resume:    # a hybrid seed keeps its region
+        for member, scale in zip(opt.population, regions):
+            member.scale = scale
     if config.redraw:
         opt.redraw = True
     start = last_save = time.perf_counter()
