@@ -72,8 +72,9 @@ class RowMarks(Sequence):
 class _Scratch(threading.local):
     """Arrays a thread's ``Evaluator.evaluate`` packs its batches into, kept from one call
     to the next.  A batch of 500 policies of 100 exemplars packs some 3 MB; fresh arrays
-    of that size come from the system as new pages each call, and their first touch cost
-    about a twelfth of the whole evaluation (the acrobot, one thread).  Only ``evaluate``
+    of that size come from the system as new pages each call, and packing into them took
+    about a thirteenth of the whole evaluation (the acrobot, one thread), half of it those
+    pages' first touch.  Only ``evaluate``
     packs into them (nothing it returns refers to them); every array is overwritten or
     zeroed before use, so a batch packs to the same values as into fresh arrays."""
 

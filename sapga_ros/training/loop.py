@@ -248,6 +248,9 @@ def train_lanes(configs: list[TrainConfig]) -> list[TrainResult]:
     return [results[i] for i in range(len(runs))]
 
 
+SAME = 1e-9        # relative difference below which a seed's catch is the run's design
+
+
 def initial_regions(initial: list, catch: Any, sigma: float) -> list[float]:
     """Each seed's catch scale (its region's c over the design's) in a run behind
     ``catch`` (the design as a hybrid): 1 for a plain policy; a hybrid's must have the
@@ -260,11 +263,13 @@ def initial_regions(initial: list, catch: Any, sigma: float) -> list[float]:
         if catch_delay(policy) is None:
             scales.append(1.0)
             continue
-        if catch_delay(policy) != catch.delay or not (
-                np.array_equal(policy.K, catch.K) and np.array_equal(policy.P, catch.P)):
+        same = np.allclose(policy.K, catch.K, rtol=SAME, atol=0.0) and \
+            np.allclose(policy.P, catch.P, rtol=SAME, atol=0.0)    # LAPACK's last bits aside
+        if catch_delay(policy) != catch.delay or not same:
             raise ConfigError(f'initial policy {i}: its catch is not this run\'s (the LQR '
                               f'of the design for a delay of {catch.delay})')
         scale = policy.c / catch.c
+        scale = 1.0 if abs(scale - 1.0) <= SAME else scale
         if scale != 1.0 and not sigma:
             raise ConfigError(f'initial policy {i}: its catch region is {scale:.6g} x the '
                               'design\'s; this run keeps the design\'s (--catch-sigma > 0 '
