@@ -42,7 +42,8 @@ def add_train_arguments(t: argparse.ArgumentParser) -> None:
                         'given from it')
     t.add_argument('--init', action='append', default=[], metavar='FILE',
                    help='policy file of hand-written exemplars to seed the population '
-                        '(repeatable; SAP-GA only)')
+                        '(repeatable; SAP-GA only; a file designed for a delay seeds a run of '
+                        'that --delay, a hybrid one behind its own catch)')
     t.add_argument('--quiet', action='store_true', help='no progress display')
     for cls in SETTINGS:
         add_settings(t, cls)
