@@ -168,27 +168,27 @@ def choose(style, model, s, ex, ex2, act, val, n, actions, p, inv_range, is_angl
     return j, action, progress
 
 
-def uniform_ahead(ctl: np.ndarray, style: int) -> int | None:
-    """d if the batch is state-action and every controller row is ``AHEAD`` with one delay
-    d, else None: the episode engine's argument that makes a state-action batch predict its
-    lanes side by side (None compiles that code out of the loop)."""
+def _uniform_delay(ctl: np.ndarray, style: int, mode: int) -> int | None:
+    """d if the batch is state-action and every controller row is of ``mode`` with one
+    delay d, else None (None compiles the engine's code for that case out of its loop)."""
     if style != STATE_ACTION or ctl.shape[0] == 0 or ctl.shape[1] <= DELAY or \
-            np.any(ctl[:, MODE] != AHEAD):
+            np.any(ctl[:, MODE] != mode):
         return None
     delays = ctl[:, DELAY]
     return int(delays[0]) if np.all(delays == delays[0]) else None
+
+
+def uniform_ahead(ctl: np.ndarray, style: int) -> int | None:
+    """The episode engine's argument that makes a state-action batch whose rows are all
+    ``AHEAD`` of one delay d predict its lanes side by side: d, else None."""
+    return _uniform_delay(ctl, style, AHEAD)
 
 
 def uniform_catch(ctl: np.ndarray, style: int) -> int | None:
-    """d if the batch is state-action and every controller row is ``CATCH`` (a hybrid)
-    designed for one delay d, else None: the episode engine's argument that asks the
-    hybrids' LQR lane by lane and searches the other lanes' exemplars together (None
-    compiles that code out of the loop)."""
-    if style != STATE_ACTION or ctl.shape[0] == 0 or ctl.shape[1] <= DELAY or \
-            np.any(ctl[:, MODE] != CATCH):
-        return None
-    delays = ctl[:, DELAY]
-    return int(delays[0]) if np.all(delays == delays[0]) else None
+    """The episode engine's argument that asks the LQR of a state-action batch of hybrids
+    (rows all ``CATCH``, one delay d) lane by lane and searches the other lanes' exemplars
+    together: d, else None."""
+    return _uniform_delay(ctl, style, CATCH)
 
 
 @kernel

@@ -23,7 +23,7 @@ from sapga_ros.evaluation.control import uniform_ahead, uniform_catch
 from sapga_ros.evaluation.engine import BLOCKS_PER_THREAD, evaluate_batch, run_share
 from sapga_ros.exemplars.distance import (normalize_padded_into, normalize_rows_padded_into,
                                           normalize_states, pad_into, pad_rows_into)
-from sapga_ros.policies.batch import FlatPolicies, PolicyBatch, flat_of
+from sapga_ros.policies.batch import PolicyBatch, flat_of
 from sapga_ros.policies.episode import Episode
 from sapga_ros.policies.exemplar import ExemplarPolicy
 from sapga_ros.policies.styles import STYLES
@@ -96,24 +96,6 @@ class _Scratch(threading.local):
         return held[:size].reshape(shape)
 
 
-def _flat_into(policies: list[ExemplarPolicy], scratch: _Scratch) -> FlatPolicies:
-    """``flat_of(policies)`` with its arrays in ``scratch`` (the same values; no second
-    states but for a style that has them, as ``pack`` reads them)."""
-    first = policies[0]
-    lengths = np.fromiter((len(p.states) for p in policies), dtype=np.int64,
-                          count=len(policies))
-    n = int(lengths.sum())
-    dim = first.states.shape[1]
-    states = np.concatenate([p.states for p in policies],
-                            out=scratch.empty('flat_states', (n, dim)))
-    actions = np.concatenate([p.actions for p in policies],
-                             out=scratch.empty('flat_actions', (n,), first.actions.dtype))
-    values = np.concatenate([p.values for p in policies], out=scratch.empty('flat_values', (n,)))
-    states2 = np.concatenate([p.states2 for p in policies]) \
-        if STYLES[first.style].uses('state2') else np.zeros((n, 0))  # not packed otherwise
-    return FlatPolicies(first.problem, first.style, states, actions, values, states2, lengths)
-
-
 def set_jobs(jobs: int | None) -> int:
     """Use ``jobs`` threads for batch evaluation (None or 0: every core); return the count."""
     n = numba.config.NUMBA_NUM_THREADS
@@ -178,8 +160,8 @@ class Evaluator:
             styles = {p.style for p in policies}
             if len(styles) > 1:
                 raise SapgaError(f'one batch holds one exemplar style, got {sorted(styles)}')
-            flat = flat_of if scratch is None else (lambda ps: _flat_into(ps, scratch))
-            groups = [flat(policies)] if policies else []
+            groups = [flat_of(policies, None if scratch is None else scratch.empty)] \
+                if policies else []
         style = STYLES[groups[0].style if groups else 'state-action']
         count, dim = sum(len(g) for g in groups), self.problem.dim
         lengths = np.concatenate([g.lengths for g in groups]) if groups else \

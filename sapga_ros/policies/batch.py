@@ -11,12 +11,13 @@ per member.
 """
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from sapga_ros.policies.exemplar import ExemplarPolicy
+from sapga_ros.policies.styles import STYLES
 from sim_nodes.problem import Problem
 
 
@@ -54,16 +55,24 @@ class FlatPolicies:
             else np.zeros((b - a, 0)))
 
 
-def flat_of(policies: list[ExemplarPolicy]) -> FlatPolicies:
-    """``policies`` (one problem and style, at least one) as a flat group (copies)."""
+def flat_of(policies: list[ExemplarPolicy], empty: Callable | None = None) -> FlatPolicies:
+    """``policies`` (one problem and style, at least one) as a flat group (copies; into
+    ``empty(name, shape, dtype)``'s arrays if given, the evaluator's kept buffers)."""
     first = policies[0]
+    lengths = np.fromiter((len(p.states) for p in policies), dtype=np.int64,
+                          count=len(policies))
+    n = int(lengths.sum())
+
+    def joined(name: str, parts: list[np.ndarray]) -> np.ndarray:
+        shape = (n, *parts[0].shape[1:])
+        return np.concatenate(parts, out=None if empty is None else
+                              empty(name, shape, parts[0].dtype))
+    states2 = joined('states2', [p.states2 for p in policies]) \
+        if STYLES[first.style].uses('state2') else np.zeros((n, 0))   # none but there
     return FlatPolicies(first.problem, first.style,
-                        np.concatenate([p.states for p in policies]),
-                        np.concatenate([p.actions for p in policies]),
-                        np.concatenate([p.values for p in policies]),
-                        np.concatenate([p.states2 for p in policies]),
-                        np.fromiter((len(p.states) for p in policies), dtype=np.int64,
-                                    count=len(policies)))
+                        joined('states', [p.states for p in policies]),
+                        joined('actions', [p.actions for p in policies]),
+                        joined('values', [p.values for p in policies]), states2, lengths)
 
 
 class PolicyBatch(Sequence):
