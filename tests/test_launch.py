@@ -22,6 +22,7 @@ from ros_helpers import executable
 from sapga_ros.cli import main as cli
 from sapga_ros.launch import run_launch
 from sapga_ros.launch.supervisor import ChildExited, Supervisor, exit_code
+from sapga_ros.evaluation.classical_design import classical_policy
 from sapga_ros.policies.exemplar import ExemplarPolicy
 from sim_nodes.problem import load_problem
 
@@ -183,6 +184,31 @@ def test_swingup_lockstep_recording_equals_sapga_eval(tmp_path, capsys):
         assert event['delta_star'] == expected['delta_star']
         assert event['goal_delta'] == 0.3
     assert rewards and all(-5.0 <= r <= -1.0 for r in rewards)   # the acrobot's reward range
+
+
+def test_swingup_replan_plays_sapga_eval_replan(tmp_path, capsys):
+    """``--replan``: the policy node re-plans, and each lockstep episode in the bag equals
+    ``sapga eval --replan``; a hold task is refused before any node starts."""
+    problem = load_problem('acrobot')
+    rng = np.random.default_rng(12)
+    policy = ExemplarPolicy(problem, rng.uniform(problem.low, problem.high, (40, 4)),
+                            rng.integers(0, 3, 40), meta={'delta': 0.3})
+    policy.save(tmp_path / 'small.json')
+    done = launch(['swingup', '--policy', 'small.json', '--out', 'rec', '--replan'], tmp_path)
+    assert 'offline evaluation (sapga eval --replan)' in done.stdout
+    assert 'every lockstep episode is equal' in done.stdout
+    (end,), _ = recorded_episodes(the_bag(tmp_path / 'rec'))
+    planned = sapga_eval_json(tmp_path / 'small.json', capsys, '--replan')
+    plain = sapga_eval_json(tmp_path / 'small.json', capsys)
+    assert end['return'] == planned['return']['max'] != plain['return']
+    assert end['delta_star'] == planned['delta_star']['max']
+    hold = tmp_path / 'hold.json'
+    hold.write_text(classical_policy(load_problem('acrobot_hold')).to_json())
+    assert run_launch('swingup', ['--policy', str(hold), '--out', str(tmp_path / 'h'),
+                                  '--replan']) == 2
+    said = capsys.readouterr()
+    assert 'is a hold task' in said.out + said.err
+    assert not (tmp_path / 'h').exists()
 
 
 def test_swingup_deploys_a_mountain_car_policy_like_the_pendulums(tmp_path, capsys):

@@ -47,7 +47,9 @@ from sapga_ros.io.jsonfile import dumps
 from sapga_ros.policies.styles import STYLES
 from sapga_ros.launch.prefix import ensure_ament_prefix
 from sapga_ros.policies.classical import RUN_DELAY
-from sim_nodes.params import DELTA
+from sim_nodes.options import add_settings
+from sim_nodes.params import DELTA, build, declared
+from sapga_ros.evaluation.replan_settings import JOBS as REPLAN_JOBS, ReplanSettings
 
 EXIT_USAGE = 2
 POLICY_DELTA = "goal difficulty (default: the policy's training delta, else the problem's)"
@@ -77,6 +79,13 @@ def build_parser() -> argparse.ArgumentParser:
                    help='seed of the disturbances drawn (default 0; never the draws a '
                         'training run used)')
     add_param(e, RUN_DELAY)
+    e.add_argument('--replan', action='store_true',
+                   help='re-plan the policy\'s own episode on the nominal model as it runs '
+                        '(decision-time planning: the plan acts on the state predicted --delay '
+                        'steps ahead); with --disturbance, its episodes; problems whose '
+                        'episode ends in S_delta')
+    add_settings(e, ReplanSettings)
+    add_param(e, REPLAN_JOBS)
 
     x = sub.add_parser('exemplars', help='list, plot or prune a policy\'s exemplars')
     x.add_argument('policy')
@@ -130,6 +139,11 @@ def cmd_eval(args) -> int:
     from sapga_ros.evaluation.evaluator import run_policy_episode
     from sapga_ros.policies.classical import run_ahead, selector_delay
     from sapga_ros.policies.kinds import load_any_policy, policy_delta
+    if args.replan:
+        return _eval_replanned(args, load_any_policy(args.policy))
+    planning = sorted(set(args.given) & {'jobs', *(p.name for p in declared(ReplanSettings))})
+    if planning:
+        raise SapgaError(f'--{planning[0].replace("_", "-")} is a setting of --replan')
     policy = run_ahead(load_any_policy(args.policy), args.delay, args.policy)
     delta = policy_delta(policy, args.delta)
     if args.disturbance:
@@ -160,6 +174,27 @@ def _eval_disturbed(args, policy, delta: float) -> int:
           f"fraction mean {out['hold_fraction']['mean']:.3f}, rail contacts "
           f"{out['rail_contacts']['total']} in {out['rail_contacts']['episodes_with']} "
           'episodes')
+    return 0
+
+
+def _eval_replanned(args, policy) -> int:
+    import os
+
+    from sapga_ros.evaluation.replan import replanned
+    from sapga_ros.policies.classical import selector_delay
+    from sapga_ros.policies.kinds import policy_delta
+    delta = policy_delta(policy, args.delta)
+    settings = build(ReplanSettings, lambda name: getattr(args, name))
+    episodes = args.episodes if args.disturbance else 1
+    jobs = args.jobs or os.cpu_count() or 1
+    out = replanned(policy, delta, args.disturbance or 'none', episodes, args.seed, settings,
+                    args.delay or selector_delay(policy), args.max_steps, jobs)
+    if args.json:
+        print(dumps(out))
+        return 0
+    print(f"{policy.problem.name} re-planned under {out['disturbance']}, {out['episodes']} "
+          f"episodes: success {out['success_rate']:.3f} ({out['success']}), delta* median "
+          f"{out['delta_star']['median']:.4f}, return median {out['return']['median']:.4f}")
     return 0
 
 

@@ -111,31 +111,41 @@ def evaluate_robust(evaluator, policies: list, robust: Robust):
 
 def episodes_summary(evaluator, policy, robust: Robust, purpose: int = HELD_OUT) -> dict:
     """Robustness of one policy over ``robust.episodes`` disturbed episodes (drawn with
-    ``purpose``): success rate (entered S_delta; hold problems: hold fraction >= 0.9),
-    hold fraction and delta* distributions, rail contacts; ``delay``: the actuation delay
-    the policy's exemplar selector is designed for (0: it acts on the state it sees)."""
-    from sim_nodes.goal import hold_measures
+    ``purpose``): ``summary`` of the engine's episodes."""
     k = robust.episodes
     r = _each_episode(evaluator, [policy] * k, robust.keys(1, purpose))
-    holds = [hold_measures(int(r.first_entry[e]), int(r.held[e]), int(r.steps[e]),
-                           int(r.contacts[e])) for e in range(k)]
-    fraction = np.array([h['hold_fraction'] for h in holds])
-    hold_task = not evaluator.problem.ends_in_goal
-    success = fraction >= 0.9 if hold_task else r.reached
+    return summary(evaluator.problem, evaluator.delta, evaluator.disturbance.name, robust.seed,
+                   selector_delay(policy), r.first_entry, r.held, r.steps, r.contacts,
+                   r.delta_star, r.returns)
 
-    def spread(a: np.ndarray) -> dict:
+
+def summary(problem, delta: float, disturbance: str, seed: int, delay: int, first_entry,
+            held, steps, contacts, delta_star, returns) -> dict:
+    """Success rate (entered S_delta; hold problems: hold fraction >= 0.9), hold fraction
+    and delta* distributions, rail contacts of episodes given by their measures (one entry
+    per episode); ``delay``: the actuation delay the policy's selector is designed for (0:
+    it acts on the state it sees)."""
+    from sim_nodes.goal import hold_measures
+    first_entry, contacts = np.asarray(first_entry), np.asarray(contacts)
+    k = len(first_entry)
+    holds = [hold_measures(int(first_entry[e]), int(held[e]), int(steps[e]),
+                           int(contacts[e])) for e in range(k)]
+    fraction = np.array([h['hold_fraction'] for h in holds])
+    hold_task = not problem.ends_in_goal
+    success = fraction >= 0.9 if hold_task else first_entry > 0
+
+    def spread(a) -> dict:
         return {'mean': float(np.mean(a)), 'min': float(np.min(a)),
                 'q10': float(np.quantile(a, 0.1)), 'median': float(np.median(a)),
                 'q90': float(np.quantile(a, 0.9)), 'max': float(np.max(a))}
-    return {'disturbance': evaluator.disturbance.name, 'episodes': k, 'seed': robust.seed,
-            'delta': evaluator.delta, 'delay': selector_delay(policy),
-            'success_rate': float(np.mean(success)),
+    return {'disturbance': disturbance, 'episodes': k, 'seed': seed, 'delta': delta,
+            'delay': delay, 'success_rate': float(np.mean(success)),
             'success': 'hold_fraction >= 0.9' if hold_task else 'entered S_delta',
-            'entered_rate': float(np.mean(r.first_entry > 0)),
-            'hold_fraction': spread(fraction), 'delta_star': spread(r.delta_star),
-            'return': spread(r.returns),
-            'rail_contacts': {'total': int(r.contacts.sum()),
-                              'episodes_with': int((r.contacts > 0).sum())}}
+            'entered_rate': float(np.mean(first_entry > 0)),
+            'hold_fraction': spread(fraction), 'delta_star': spread(delta_star),
+            'return': spread(returns),
+            'rail_contacts': {'total': int(contacts.sum()),
+                              'episodes_with': int((contacts > 0).sum())}}
 
 
 def robustness(policy, delta: float, disturbance: str, episodes: int, seed: int = 0,

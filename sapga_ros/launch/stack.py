@@ -45,6 +45,7 @@ class StackOptions:
     real_time_factor: float = 1.0
     engine: str = 'kernel'         # mujoco: the MuJoCo robot, driven through the mapping
     n_step: int | None = None      # MDP steps per episode (None: the problem's)
+    replan: bool = False           # the policy node re-plans (sapga_ros.evaluation.replan)
 
 
 @dataclass
@@ -69,6 +70,8 @@ class DeployStack:
         recorder = {'problem': o.problem.name, 'output_dir': str(o.out),
                     'bag': self.bag.name, 'delta': float(o.delta)}
         policy: dict[str, Any] = {'problem': o.problem.name, **self._loop_executor()}
+        if o.replan:
+            policy['replan'] = True
         if o.engine == 'mujoco':
             self.topics['effort'] = self.ros.node.resolve_topic_name(EFFORT_TOPIC)
             recorder['topics'] = [*self.ros.node.topics.values(),

@@ -42,6 +42,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Sequence
 
+from sapga_ros.errors import SapgaError
 from sapga_ros.launch.supervisor import Supervisor, launch_main
 from sapga_ros.launch.launch_node import LaunchRos
 from sapga_ros.launch.ros_args import RosOptions, add_ros_arguments
@@ -99,6 +100,10 @@ def build_parser() -> argparse.ArgumentParser:
     add_param(p, sim['engine'], help='kernel (default) or mujoco: the MuJoCo robot, which '
                                      'the policy node drives through its joint mapping and '
                                      'an effort array')
+    p.add_argument('--replan', action='store_true',
+                   help='the policy node re-plans the policy\'s episode at every state '
+                        '(decision-time planning, default settings; compared with sapga '
+                        'eval --replan); problems whose episode ends in S_delta')
     add_ros_arguments(p)
     return p
 
@@ -109,9 +114,12 @@ def run_swingup(args: argparse.Namespace, sup: Supervisor) -> SwingupResult:
     problem = load_problem(args.problem) if args.problem else None
     policy = load_policy(Path(args.policy).resolve(), problem)   # checked before any start
     problem = policy.problem
+    if args.replan and not problem.ends_in_goal:
+        raise SapgaError(f'--replan: {problem.name} is a hold task (re-planning needs an '
+                         'episode that ends in S_delta)')
     opts = StackOptions(problem, Path(args.out).resolve(), policy_delta(policy, args.delta),
                         args.episodes, args.mode, args.real_time_factor, args.engine,
-                        args.n_step)
+                        args.n_step, args.replan)
     sup.say(f'{problem.name}: policy {args.policy} ({len(policy)} exemplars), delta '
             f'{opts.delta}, {opts.episodes} episode(s) in {opts.mode} mode, recording to '
             f'{opts.out}' + (', on the MuJoCo robot' if opts.engine == 'mujoco' else ''))
@@ -132,7 +140,12 @@ def run_swingup(args: argparse.Namespace, sup: Supervisor) -> SwingupResult:
         ros.close()
     offline = equal = None
     if opts.mode == 'lockstep' and opts.engine == 'kernel':   # MuJoCo is not the kernel
-        offline = offline_episode(policy, opts.delta, opts.n_step)
+        if opts.replan:
+            from sapga_ros.evaluation.replan import replanned_episode
+            offline = {**replanned_episode(policy, opts.delta, opts.n_step),
+                       'by': 'sapga eval --replan'}
+        else:
+            offline = offline_episode(policy, opts.delta, opts.n_step)
         equal = all(same_episode(event_summary(e), offline) for e in ends)
     return SwingupResult(ends, stack.recordings(), offline, equal, stack.check_recording(ends))
 
@@ -146,7 +159,8 @@ def print_swingup(sup: Supervisor, result: SwingupResult) -> int:
         lines.append("recording: none written (see the recorder's output)")
     if result.offline is not None:
         o = result.offline
-        lines.append(f'offline evaluation (sapga eval): return {o["return"]:.4f}, delta* '
+        lines.append(f'offline evaluation ({o.get("by", "sapga eval")}): return '
+                     f'{o["return"]:.4f}, delta* '
                      f'{o["delta_star"]:.5f}, steps {o["steps"]}: '
                      + ('every lockstep episode is equal' if result.equal
                         else 'DIFFERENT from the lockstep episodes'))

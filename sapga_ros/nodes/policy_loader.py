@@ -15,7 +15,7 @@ from __future__ import annotations
 import threading
 import time
 from dataclasses import dataclass, replace
-from typing import Callable
+from typing import Any, Callable
 
 from rclpy.callback_groups import CallbackGroup
 from rclpy.client import Client
@@ -37,12 +37,15 @@ class PreparedPolicy:
     """A validated policy in the selector's layout; never modified once made."""
 
     policy: ExemplarPolicy
-    selector: StateSelector  # packed as Evaluator.pack packs it (its scratch changes)
+    selector: Any            # a StateSelector (its scratch changes) or a PlanningSelector
     source: str             # where it came from (file path or service name)
 
     @classmethod
-    def of(cls, policy: ExemplarPolicy, source: str) -> PreparedPolicy:
-        return cls(policy, StateSelector(policy), source)
+    def of(cls, policy: ExemplarPolicy, source: str,
+           make: Callable[[ExemplarPolicy], Any] = StateSelector) -> PreparedPolicy:
+        """``policy`` with its selector made by ``make`` (the policy node's: a
+        ``StateSelector``, or with ``replan`` a ``PlanningSelector``)."""
+        return cls(policy, make(policy), source)
 
     def __len__(self) -> int:
         return len(self.policy)
@@ -94,7 +97,8 @@ class PolicyLoader:
               done: Callable[[LoadResult], None]) -> None:
         prepared = error = None
         try:
-            prepared = PreparedPolicy.of(load(), source)
+            prepared = PreparedPolicy.of(load(), source,
+                                         getattr(self._node, 'make_selector', StateSelector))
         except SapgaError as exc:
             error = str(exc)
         except MemoryError:

@@ -16,7 +16,10 @@ Parameters (``policy_params.py``; ``policy_node --help`` prints them with their 
 policy run as designed for that actuation delay), ``markers``, ``qos_profile``, and the
 mapping onto a robot that is not ours (``joint_mapping.py``): its
 joint names, angle offsets and directions, velocities from finite differences when its
-``JointState`` has none, and the command as a ``std_msgs/Float64MultiArray`` effort array.
+``JointState`` has none, and the command as a ``std_msgs/Float64MultiArray`` effort array;
+``replan`` and its settings run decision-time planning on top of the policy instead of its
+selector (``sapga_ros.evaluation.replan``: the plan of the policy's own episode, improved on
+the nominal model at every state; exemplar index -1).
 
 A ``policy_file`` given at start is loaded at once, whatever its size; one that cannot be used
 stops the node with one line naming the file (exit 2).  Service ``~/load_policy``
@@ -56,6 +59,9 @@ from sapga_ros.policies.jsonfile import MAX_POLICY_BYTES
 from sapga_ros.io.bounded import open_regular
 from sapga_ros.nodes.joint_mapping import JointMapping, RobotState
 from sapga_ros.nodes.policy_loader import LoadResult, PolicyLoader, PreparedPolicy, fetch_text
+from sapga_ros.evaluation.replan_settings import ReplanSettings
+from sapga_ros.evaluation.state_selector import StateSelector
+from sim_nodes.params import build
 from sapga_ros.nodes.policy_params import PARAMETERS, check_setting
 from sim_nodes.problem import Problem, load_problem
 from sim_nodes.ros.commands import StampedCommand
@@ -95,6 +101,16 @@ class PolicyNode(GuardedNode):
         policy_file, service = values['policy_file'], values['trainer_service']
         self.load_timeout = values['load_timeout']
         self.delay = values['delay']         # run plain exemplar policies as designed for it
+        self.replan = values['replan']       # or plan on each policy's episode, that delay ahead
+        if self.replan and not self.problem.ends_in_goal:
+            raise SapgaError(f'replan: {self.problem.name} is a hold task (re-planning needs '
+                             'an episode that ends in S_delta)')
+        if self.replan:
+            from sapga_ros.evaluation.replan import PlanningSelector
+            settings = build(ReplanSettings, lambda name: values[name])
+            self.make_selector = lambda policy: PlanningSelector(policy, settings, self.delay)
+        else:
+            self.make_selector = StateSelector
         self.markers = values['markers']
         self.qos_profile = values['qos_profile']
 
@@ -150,7 +166,8 @@ class PolicyNode(GuardedNode):
         if policy_file:
             # At start-up nothing waits for an answer: load at once, whatever the size, and a
             # file that cannot be used is a user error (PolicyFileError: one line, exit 2).
-            self._install(PreparedPolicy.of(self._read(policy_file), policy_file))
+            self._install(PreparedPolicy.of(self._read(policy_file), policy_file,
+                                            self.make_selector))
             self._file_in_use = policy_file
         self.get_logger().info(f'{p.name} policy node; load_policy fetches from {service!r}')
         if not self.mapping.identity or self._effort_pub is not None:
@@ -243,8 +260,9 @@ class PolicyNode(GuardedNode):
         return self._as_run(load_policy(path, self.problem), path)
 
     def _as_run(self, policy: ExemplarPolicy, source: str) -> ExemplarPolicy:
-        """``policy`` (from ``source``) designed for the node's ``delay``, if set."""
-        return run_ahead(policy, self.delay, source)
+        """``policy`` (from ``source``) designed for the node's ``delay``, if set (with
+        ``replan`` the planner predicts that far ahead: the policy runs as it is)."""
+        return policy if self.replan else run_ahead(policy, self.delay, source)
 
     def _load_file(self, path: str) -> None:
         """Load policy file ``path`` in a worker thread; swap it in when it is ready."""
@@ -301,7 +319,8 @@ class PolicyNode(GuardedNode):
             if param.name == 'policy_file' and path and path != self._reverting:
                 try:
                     if policy_file_size(path) <= SYNC_BYTES:   # else: in the background
-                        self._staged[path] = PreparedPolicy.of(self._read(path), path)
+                        self._staged[path] = PreparedPolicy.of(self._read(path), path,
+                                                               self.make_selector)
                 except SapgaError as exc:
                     self.get_logger().error(f'policy refused, keeping the current one: {exc}')
                     return SetParametersResult(successful=False, reason=str(exc))

@@ -35,11 +35,13 @@ read-only; ``joint_mapping.py`` checks them together.
 """
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any
 
 from sapga_ros.nodes.joint_mapping import COMMAND_OUTPUTS, VELOCITY_SOURCES
 from sapga_ros.policies.controller_row import MAX_DELAY
-from sim_nodes.params import Param
+from sapga_ros.evaluation.replan_settings import ReplanSettings
+from sim_nodes.params import Param, declared
 from sim_nodes.ros.common import QOS_PROFILES
 from sim_nodes.ros.executors import DEFAULT_EXECUTOR, EXECUTORS
 from sim_nodes.ros.params import check
@@ -83,7 +85,14 @@ MAPPING_PARAMETERS = (
     Param('effort_index', 0, "effort_array: the actuated joint's index in it", 0, 1023,
           read_only=True),
 )
-PARAMETERS = PARAMETERS + MAPPING_PARAMETERS
+# decision-time planning (sapga_ros.evaluation.replan); all read-only
+REPLAN_PARAMETERS = (
+    Param('replan', False, "re-plan the policy's own episode on the nominal model at every "
+          "state (decision-time planning; the plan acts on the state predicted 'delay' steps "
+          'ahead): problems whose episode ends in S_delta', read_only=True),
+    *(replace(p, read_only=True) for p in declared(ReplanSettings)),
+)
+PARAMETERS = PARAMETERS + MAPPING_PARAMETERS + REPLAN_PARAMETERS
 
 
 def check_setting(name: str, value: Any) -> str | None:

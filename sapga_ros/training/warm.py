@@ -6,7 +6,8 @@ compiles once).  A few tiny runs call every kernel with the argument types real 
 each problem's batch and traced episodes in every exemplar style (and the state-action
 batches that predict their lanes or hand over to a catch), a short SAP-GA and
 Q-learning training run, the model step the ROS simulator takes (also on a disturbed
-plant, ``sim_nodes.disturbance.Plant``), and a small physical-limit search.  On a warm
+plant, ``sim_nodes.disturbance.Plant``), a re-planned episode (``--replan``) and a small
+physical-limit search.  On a warm
 cache it only loads the cached code.
 """
 from __future__ import annotations
@@ -19,6 +20,8 @@ import numpy as np
 
 from sapga_ros.analysis.limit import beam_limit
 from sapga_ros.evaluation.evaluator import Evaluator
+from sapga_ros.evaluation.replan import planned_episodes
+from sapga_ros.evaluation.replan_settings import ReplanSettings
 from sapga_ros.evaluation.state_selector import StateSelector
 from sapga_ros.evaluation.classical_design import classical_policy
 from sapga_ros.errors import SapgaError
@@ -74,6 +77,9 @@ def warm(problems: list[str] | None = None) -> float:
             plant.observe(s)
             plant.command(float(problem.actions[0]))
             plant.push(s)
+        if problem.ends_in_goal:                # decision-time planning (sapga eval --replan)
+            planned_episodes(policies[0], problem.default_delta, 'field', 1, 0,
+                             ReplanSettings(replan_rounds=1), 1, 3)
         base = TrainConfig(problem=name, steps=2_000, jobs=1, params=SAPGA)
         train(base)
         train(replace(base, method='ql', steps=1_000, ql=QlParams(chunk_steps=1_000)))

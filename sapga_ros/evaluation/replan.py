@@ -1,0 +1,296 @@
+"""Decision-time planning on top of a policy: the plan of its own episode, re-planned.
+
+A trained exemplar policy is a memorised trajectory: off its one initial state, or on a plant
+that is not its model, it rarely gets where its episode got.  What it does give is a good
+guess.  ``Replanner`` keeps a plan, one action for every step of the episode, the policy's
+own undisturbed episode at first (the action nearest zero after its end).  Every ``every``
+MDP steps it improves the rest of the plan on the nominal model, from the state predicted
+for when the command it issues now will act (``delay`` steps of the nominal model with the
+commands in flight, as the delay-aware selector predicts): ``rounds`` rounds of a (1, 16)
+evolution strategy, 16 mutants of the plan (each with one to three of the next ``window``
+actions drawn anew) stepped side by side by the engine's model kernel, the best of them kept
+when it is no worse than the plan.  A plan's score: the steps until it enters S_delta, else
+1e4 (1 + its delta*): the soonest entry, else the nearest approach.  Then it issues the
+plan's action for this step.  Re-planning from what it sees every few steps is the
+feedback; the model's error and the sensor noise are what it cannot plan for.
+
+The mutations are counter-based draws (``sim_nodes.draws.uniform``) keyed by the planner's
+seed and the step, so a planned episode is a pure function of the states seen: the same for
+any thread count.  Problems whose episode ends in S_delta only (the hold task's goal is to
+stay, which this score does not measure).
+"""
+from __future__ import annotations
+
+import math
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+
+from sapga_ros.errors import SapgaError
+from sim_nodes.disturbance import Plant, load_disturbance
+from sim_nodes.draws import HELD_OUT, episode_key, uniform
+from sim_nodes.goal import goal_arrays, goal_delta, lanes_delta
+from sim_nodes.jit import kernel
+from sim_nodes.models.dispatch import step_lanes
+from sapga_ros.evaluation.replan_settings import ReplanSettings
+
+PLAN_LANES = 16        # mutants of one round, stepped side by side
+S_PLAN = 7             # the planner's stream of draws (the disturbances use 0-4)
+FAR = 1e4              # a plan that never enters S_delta scores FAR (1 + its delta*)
+START_TOL = 0.1        # a state this near the initial one in every coordinate is a start,
+RESTART_AFTER = 50     # ... once the plan has run this many steps: the plan starts again
+
+
+@kernel(nogil=True)
+def plan_scores(model, s, cand, t0, n, p, actions, best, inv_scale, fixed, is_angle, delta,
+                S, a, r, d, score):
+    """score[k] of plan cand[k] (action indices) from the state s, its steps t0..n-1 on the
+    model with parameters p, the 16 plans side by side."""
+    lanes = cand.shape[0]
+    first = np.zeros(lanes, dtype=np.int64)
+    dmin = np.full(lanes, np.inf)
+    for k in range(lanes):
+        S[:, k] = s
+    left = lanes
+    for t in range(t0, n):
+        for k in range(lanes):
+            a[k] = actions[cand[k, t]]
+        step_lanes(model, S, a, p, lanes, r)
+        lanes_delta(S, lanes, best, inv_scale, fixed, is_angle, d)
+        for k in range(lanes):
+            if first[k] == 0:
+                dmin[k] = d[k] if d[k] < dmin[k] else dmin[k]
+                if d[k] <= delta:
+                    first[k] = t - t0 + 1
+                    left -= 1
+        if left == 0:
+            break
+    for k in range(lanes):
+        score[k] = first[k] if first[k] > 0 else FAR * (1.0 + dmin[k])
+
+
+@kernel(nogil=True)
+def improve_plan(model, s, plan, t0, n, p, actions, best, inv_scale, fixed, is_angle, delta,
+                 rounds, window, key):
+    """Improve plan[t0:n] in place from the state s (see the module docstring); its score."""
+    lanes = PLAN_LANES
+    dim = s.shape[0]
+    cand = np.empty((lanes, n), dtype=np.int64)
+    S = np.empty((dim, lanes))
+    a, r, d, score = np.empty(lanes), np.empty(lanes), np.empty(lanes), np.empty(lanes)
+    span = min(window, n - t0)
+    na = actions.shape[0]
+    counter = np.uint64(0)
+    current = np.inf
+    for rnd in range(rounds):
+        for k in range(lanes):
+            cand[k, :] = plan
+            if rnd == 0 and k == 0:
+                continue                 # the plan itself: its score
+            m = 1 + int(3.0 * uniform(key, S_PLAN, counter))
+            counter += np.uint64(1)
+            for _ in range(m):
+                j = t0 + int(span * uniform(key, S_PLAN, counter))
+                cand[k, j] = int(na * uniform(key, S_PLAN, counter + np.uint64(1)))
+                counter += np.uint64(2)
+        plan_scores(model, s, cand, t0, n, p, actions, best, inv_scale, fixed, is_angle,
+                    delta, S, a, r, d, score)
+        if rnd == 0:
+            current = score[0]
+        k_best = 0
+        for k in range(1, lanes):
+            if score[k] < score[k_best]:
+                k_best = k
+        if score[k_best] <= current:
+            current = score[k_best]
+            plan[:] = cand[k_best]
+    return current
+
+
+def first_plan(policy, n_step: int, delta: float) -> np.ndarray:
+    """The policy's own undisturbed episode (goal difficulty ``delta``) as action indices,
+    then the action nearest zero to the end of ``n_step`` steps."""
+    from sapga_ros.evaluation.evaluator import run_policy_episode
+    problem = policy.problem
+    actions = np.asarray(problem.action_values, dtype=np.float64)
+    ep = run_policy_episode(policy, delta, n_step)
+    plan = np.full(n_step, int(np.argmin(np.abs(actions))), dtype=np.int64)
+    for t, value in enumerate(ep.actions[:n_step]):
+        plan[t] = int(np.argmin(np.abs(actions - value)))
+    return plan
+
+
+class Replanner:
+    """The planning controller of one problem (see the module docstring): ``reset()`` at an
+    episode's start, ``act(seen)`` at every step."""
+
+    def __init__(self, problem, plan: np.ndarray, settings: ReplanSettings, delta: float,
+                 delay: int = 0) -> None:
+        if not problem.ends_in_goal:
+            raise SapgaError(f'{problem.name}: re-planning needs an episode that ends in '
+                             'S_delta (a hold task is not scored by entering it)')
+        from sapga_ros.evaluation.evaluator import model_id
+        self.problem, self.settings, self.delta, self.delay = problem, settings, delta, delay
+        self.first = np.ascontiguousarray(plan, dtype=np.int64)
+        self.model = model_id(problem.model)
+        self.p = problem.params()
+        self.actions = np.asarray(problem.action_values, dtype=np.float64)
+        self.goal = goal_arrays(problem)
+        self.key = np.uint64(episode_key(settings.replan_seed, 0, 0, 0))  # a numpy word
+        self._one = (np.empty((problem.dim, 1)), np.empty(1), np.empty(1))
+        self.reset()
+
+    def reset(self) -> None:
+        self.plan = self.first.copy()
+        self.t = 0
+        self.in_flight = [0.0] * self.delay     # commands issued, not yet acting (oldest first)
+
+    def predict(self, seen: np.ndarray) -> np.ndarray:
+        """The state when a command issued now acts: the nominal model stepped with the
+        commands in flight."""
+        S, a, r = self._one
+        S[:, 0] = seen
+        for command in self.in_flight:
+            a[0] = command
+            step_lanes(self.model, S, a, self.p, 1, r)
+        return S[:, 0].copy()
+
+    def at_start(self, seen: np.ndarray) -> bool:
+        """Whether ``seen`` is within START_TOL of the problem's initial state in every
+        coordinate (angles the short way round)."""
+        d = np.abs(np.asarray(seen, dtype=np.float64) - self.problem.initial_state)
+        angle = self.problem.is_angle
+        d[angle] = np.minimum(d[angle] % (2 * np.pi), 2 * np.pi - d[angle] % (2 * np.pi))
+        return bool(np.all(d <= START_TOL))
+
+    def act(self, seen: np.ndarray) -> float:
+        """The action to issue at this step for the state seen.  A state near the initial
+        one after RESTART_AFTER steps starts the plan again (a new episode: a robot or a
+        simulator whose start is spread cannot say so otherwise)."""
+        if self.t >= RESTART_AFTER and self.at_start(seen):
+            self.reset()
+        n = len(self.plan)
+        t = min(self.t, n - 1)
+        if self.t % self.settings.replan_every == 0 and self.t < n:
+            s = self.predict(np.asarray(seen, dtype=np.float64))
+            key = np.uint64(episode_key(self.key, self.t, 0, 0))
+            improve_plan(self.model, s, self.plan, t, n, self.p, self.actions, *self.goal,
+                         self.problem.is_angle, self.delta, self.settings.replan_rounds,
+                         self.settings.replan_window, key)
+        value = float(self.actions[self.plan[t]])
+        if self.delay:
+            self.in_flight = self.in_flight[1:] + [value]
+        self.t += 1
+        return value
+
+
+class PlanningSelector:
+    """What the policy node runs with ``replan``: a ``StateSelector``'s interface over a
+    ``Replanner`` whose first plan is ``policy``'s own episode at the policy's delta.  Its
+    actions come from no exemplar (index -1)."""
+
+    stateful = True          # its plan and commands in flight: reset when an episode starts
+
+    def __init__(self, policy, settings: ReplanSettings, delay: int = 0) -> None:
+        from sapga_ros.policies.kinds import policy_delta
+        problem = policy.problem
+        delta = policy_delta(policy)
+        self.policy = policy
+        self.planner = Replanner(problem, first_plan(policy, problem.n_step, delta), settings,
+                                 delta, delay)
+
+    def __len__(self) -> int:
+        return len(self.policy)
+
+    def reset(self) -> None:
+        self.planner.reset()
+
+    def select(self, state: np.ndarray) -> tuple[int, float]:
+        return -1, self.planner.act(np.asarray(state, dtype=np.float64))
+
+
+def planned_episode(planner: Replanner, plant: Plant, key: tuple) -> dict:
+    """One episode of ``planner`` on ``plant`` (draw key ``key``): what the engine records
+    of an episode (return, steps, delta*, first entry, contacts)."""
+    problem = planner.problem
+    best, inv_scale, fixed = planner.goal
+    s = plant.reset(key)
+    planner.reset()
+    S, a, r = np.empty((problem.dim, 1)), np.empty(1), np.empty(1)
+    dstar = goal_delta(s, best, inv_scale, fixed, problem.is_angle)
+    ret, first, contacts, steps = 0.0, 0, 0, 0
+    fail = not math.isnan(problem.fail_charge)
+    for t in range(plant.n_step):
+        a[0] = plant.command(planner.act(plant.observe(s)))
+        plant.push(s)
+        S[:, 0] = s
+        step_lanes(planner.model, S, a, plant.params, 1, r)
+        s = S[:, 0].copy()
+        plant.advance()
+        steps = t + 1
+        ret += r[0]
+        d = goal_delta(s, best, inv_scale, fixed, problem.is_angle)
+        dstar = min(dstar, d)
+        hit = r[0] < problem.contact_below
+        contacts += hit
+        if d <= planner.delta:
+            first = steps
+            break
+        if hit and fail:
+            ret += (plant.n_step - steps) * problem.fail_charge
+            break
+    return {'return': ret, 'steps': steps, 'delta_star': dstar, 'first_entry': first,
+            'held': 1 if first else 0, 'contacts': contacts}
+
+
+def planned_episodes(policy, delta: float, disturbance: str, episodes: int, seed: int,
+                     settings: ReplanSettings, delay: int = 0, n_step: int | None = None,
+                     jobs: int = 1) -> list[dict]:
+    """``episodes`` held-out episodes of profile ``disturbance`` (the draws ``sapga eval
+    --disturbance`` runs the policy alone on) with the policy's plan re-planned; the same
+    for any ``jobs``."""
+    problem = policy.problem
+    n = problem.resolve('n_step', n_step)
+    plan = first_plan(policy, n, delta)
+    profile = load_disturbance(disturbance)
+
+    def run(e: int) -> dict:
+        planner = Replanner(problem, plan, settings, delta, delay)
+        return planned_episode(planner, Plant(problem, profile, n), (seed, 0, HELD_OUT, e))
+
+    if jobs <= 1:
+        return [run(e) for e in range(episodes)]
+    with ThreadPoolExecutor(max_workers=jobs) as pool:
+        return list(pool.map(run, range(episodes)))
+
+
+def replanned_episode(policy, delta: float, n_step: int | None = None,
+                      settings: ReplanSettings = ReplanSettings(), delay: int = 0) -> dict:
+    """The undisturbed re-planned episode as ``Episode.summary()`` gives an episode (what
+    ``sapga launch swingup --replan`` compares its lockstep episodes with)."""
+    from sim_nodes.goal import hold_measures
+    o = planned_episodes(policy, delta, 'none', 1, 0, settings, delay, n_step)[0]
+    return {'return': o['return'], 'delta_star': o['delta_star'], 'steps': o['steps'],
+            'reached': o['first_entry'] > 0,
+            **hold_measures(o['first_entry'], o['held'], o['steps'], o['contacts'])}
+
+
+def replanned(policy, delta: float, disturbance: str, episodes: int, seed: int,
+              settings: ReplanSettings, delay: int = 0, n_step: int | None = None,
+              jobs: int = 1) -> dict:
+    """``sapga eval --replan``: the robustness summary (``evaluation.robust.summary``) of
+    ``planned_episodes``, with the planner's settings."""
+    from sapga_ros.evaluation.robust import summary
+    from sapga_ros.policies.exemplar import ExemplarPolicy
+    if not isinstance(policy, ExemplarPolicy):
+        raise SapgaError('re-planning starts from the episode of an exemplar or classical '
+                         'policy, not of a Q-learning table')
+    out = planned_episodes(policy, delta, disturbance, episodes, seed, settings, delay, n_step,
+                           jobs)
+    profile = load_disturbance(disturbance).name
+    return {**summary(policy.problem, delta, profile, seed, delay,
+                      [o['first_entry'] for o in out], [o['held'] for o in out],
+                      [o['steps'] for o in out], [o['contacts'] for o in out],
+                      [o['delta_star'] for o in out], [o['return'] for o in out]),
+            'replan': {'rounds': settings.replan_rounds, 'window': settings.replan_window,
+                       'every': settings.replan_every, 'seed': settings.replan_seed}}

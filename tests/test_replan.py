@@ -1,0 +1,162 @@
+"""Decision-time planning on top of a policy (``sapga_ros.evaluation.replan``): the plan's
+score is the episode it stands for, improving never makes it worse, a planned episode on
+the exact model enters S_delta when its plan said it would (or sooner), and the same
+episodes come out of any thread count."""
+import math
+
+import numpy as np
+import pytest
+
+from sapga_ros.errors import SapgaError
+from sapga_ros.evaluation.evaluator import model_id
+from sapga_ros.evaluation.replan import (FAR, PLAN_LANES, RESTART_AFTER, Replanner, first_plan,
+                                         improve_plan, plan_scores, planned_episode,
+                                         planned_episodes)
+from sapga_ros.evaluation.replan_settings import ReplanSettings
+from sapga_ros.optim.operators import random_exemplars
+from sim_nodes.disturbance import Disturbance, Plant, load_disturbance
+from sim_nodes.goal import goal_arrays, goal_delta
+from sim_nodes.models.dispatch import step_lanes
+from sim_nodes.draws import episode_key
+from sim_nodes.errors import ConfigError
+from sim_nodes.problem import load_problem
+
+EASY = 0.47        # the acrobot's goal box some random plans enter, some not
+MIXED = {'acrobot': EASY, 'pdip': 0.3}
+
+
+def scores(problem, plans, s, t0, delta):
+    lanes, dim = len(plans), problem.dim
+    out = np.empty(lanes)
+    plan_scores(model_id(problem.model), s, plans, t0, plans.shape[1], problem.params(),
+                np.asarray(problem.action_values, dtype=np.float64), *goal_arrays(problem),
+                problem.is_angle, delta, np.empty((dim, lanes)), np.empty(lanes),
+                np.empty(lanes), np.empty(lanes), out)
+    return out
+
+
+def score_alone(problem, plan, s, t0, delta):
+    """What plan_scores computes, one step at a time on one state."""
+    S, a, r = s.copy().reshape(-1, 1), np.empty(1), np.empty(1)
+    best, inv_scale, fixed = goal_arrays(problem)
+    dmin = math.inf
+    for t in range(t0, len(plan)):
+        a[0] = problem.action_values[plan[t]]
+        step_lanes(model_id(problem.model), S, a, problem.params(), 1, r)
+        d = goal_delta(S[:, 0], best, inv_scale, fixed, problem.is_angle)
+        dmin = min(dmin, d)
+        if d <= delta:
+            return t - t0 + 1
+    return FAR * (1.0 + dmin)
+
+
+@pytest.mark.parametrize('name', ['acrobot', 'pdip'])
+def test_plan_scores_are_the_episodes_of_the_plans(name, rng):
+    problem = load_problem(name)
+    n = 120
+    plans = rng.integers(0, len(problem.action_values), size=(PLAN_LANES, n))
+    plans[3] = plans[2]                              # equal plans, equal scores
+    s = problem.initial_state.astype(np.float64)
+    for delta, t0 in ((MIXED[name], 0), (MIXED[name], 40), (0.02, 7)):
+        got = scores(problem, plans, s, t0, delta)
+        want = [score_alone(problem, plans[k], s, t0, delta) for k in range(PLAN_LANES)]
+        assert got.tolist() == want
+        assert got[2] == got[3]
+    mixed = scores(problem, plans, s, 0, MIXED[name])
+    assert (mixed < FAR).any() and (mixed >= FAR).any()
+
+
+def test_improving_never_worsens_and_reports_the_plan_it_keeps():
+    problem = load_problem('acrobot')
+    n = 150
+    s = problem.initial_state.astype(np.float64)
+    zero = int(np.argmin(np.abs(problem.action_values)))
+    plan = np.full(n, zero, dtype=np.int64)
+    before = score_alone(problem, plan, s, 0, EASY)
+    args = (model_id(problem.model), s, plan, 0, n, problem.params(),
+            np.asarray(problem.action_values, dtype=np.float64), *goal_arrays(problem),
+            problem.is_angle, EASY)
+    got = improve_plan(*args, 6, 150, np.uint64(12345))
+    assert got < before                              # a plan of zeros is easily bettered
+    assert got == score_alone(problem, plan, s, 0, EASY)
+    again = plan.copy()
+    assert improve_plan(*args[:2], again, *args[3:], 6, 150, np.uint64(12345)) <= got
+    # the draws are the key's: the same key, the same plan
+    one = np.full(n, zero, dtype=np.int64)
+    two = np.full(n, zero, dtype=np.int64)
+    for p in (one, two):
+        improve_plan(args[0], s, p, 0, n, *args[5:], 3, 50, np.uint64(7))
+    assert one.tolist() == two.tolist()
+    # the window: no action past it is ever redrawn
+    window = np.full(n, zero, dtype=np.int64)
+    improve_plan(args[0], s, window, 10, n, *args[5:], 4, 20, np.uint64(9))
+    assert (window[:10] == zero).all() and (window[30:] == zero).all()
+
+
+def test_on_the_exact_model_the_planned_episode_enters_when_planned_or_sooner(rng):
+    problem = load_problem('acrobot')
+    plant = Plant(problem, Disturbance(), 150)
+    settings = ReplanSettings(replan_rounds=4, replan_every=5)
+    plan = rng.integers(0, len(problem.action_values), size=150)
+    planner = Replanner(problem, plan, settings, EASY)
+    ep = planned_episode(planner, plant, (0, 0, 1, 0))
+    planner.reset()
+    promised = improve_plan(planner.model, problem.initial_state.astype(np.float64),
+                            planner.plan, 0, 150, planner.p, planner.actions, *planner.goal,
+                            problem.is_angle, EASY, 4, 150,
+                            np.uint64(episode_key(planner.key, 0, 0, 0)))
+    assert promised < FAR
+    assert 0 < ep['first_entry'] <= promised
+    assert ep['steps'] == ep['first_entry']
+
+
+def test_the_first_plan_is_the_policys_episode(rng):
+    problem = load_problem('acrobot')
+    policy = random_exemplars(problem, 30, rng)
+    from sapga_ros.evaluation.evaluator import Evaluator
+    ep = Evaluator(problem, EASY, 120).episode(policy)
+    plan = first_plan(policy, 120, EASY)
+    assert len(plan) == 120
+    assert problem.action_values[plan[:ep.steps]].tolist() == ep.actions.tolist()
+    assert (problem.action_values[plan[ep.steps:]] == 0.0).all()
+
+
+def test_disturbed_planned_episodes_are_the_same_for_any_thread_count(rng):
+    problem = load_problem('acrobot')
+    policy = random_exemplars(problem, 20, rng)
+    settings = ReplanSettings(replan_rounds=2, replan_every=10)
+    one = planned_episodes(policy, EASY, 'field', 4, 3, settings, 1, 80, jobs=1)
+    two = planned_episodes(policy, EASY, 'field', 4, 3, settings, 1, 80, jobs=2)
+    assert one == two
+    assert len({o['return'] for o in one}) > 1      # the draws differ between episodes
+    # each episode starts where the engine's episode of the same key starts
+    plant = Plant(problem, load_disturbance('field'), 80)
+    assert not np.array_equal(plant.reset((3, 0, 1, 0)), problem.initial_state)
+
+
+def test_refusals():
+    with pytest.raises(SapgaError, match='hold task'):
+        Replanner(load_problem('acrobot_hold'), np.zeros(5, dtype=np.int64),
+                  ReplanSettings(), 0.02)
+    for bad in ({'replan_rounds': 0}, {'replan_every': 0}, {'replan_window': 0},
+                {'replan_seed': -1}):
+        with pytest.raises(ConfigError, match=next(iter(bad))):
+            ReplanSettings(**bad)
+
+
+def test_a_state_near_the_start_after_a_while_starts_the_plan_again(rng):
+    problem = load_problem('acrobot')
+    plan = rng.integers(0, len(problem.action_values), size=100)
+    planner = Replanner(problem, plan, ReplanSettings(replan_rounds=1, replan_every=1000), 0.02)
+    s0 = problem.initial_state
+    near = s0 + np.array([0.09, -0.09, 0.05, -0.05])
+    far = s0 + np.array([0.0, 0.0, 0.2, 0.0])
+    for t in range(RESTART_AFTER):
+        planner.act(near)                      # early in the plan: no restart
+    assert planner.t == RESTART_AFTER
+    planner.act(far)
+    assert planner.t == RESTART_AFTER + 1      # not a start
+    wrapped = near.copy()
+    wrapped[1] += 2 * np.pi                    # the same angle, a turn on
+    planner.act(wrapped)
+    assert planner.t == 1                      # started again
