@@ -208,6 +208,10 @@ def test_swingup_replan_plays_sapga_eval_replan(tmp_path, capsys):
                                   '--replan']) == 2
     said = capsys.readouterr()
     assert 'is a hold task' in said.out + said.err
+    assert run_launch('swingup', ['--policy', str(tmp_path / 'small.json'), '--out',
+                                  str(tmp_path / 'h'), '--replan', '--n-step', '800']) == 2
+    said = capsys.readouterr()
+    assert 'no --delta or --n-step with it' in said.out + said.err
     assert not (tmp_path / 'h').exists()
 
 

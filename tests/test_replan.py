@@ -149,8 +149,8 @@ def test_a_state_near_the_start_after_a_while_starts_the_plan_again(rng):
     plan = rng.integers(0, len(problem.action_values), size=100)
     planner = Replanner(problem, plan, ReplanSettings(replan_rounds=1, replan_every=1000), 0.02)
     s0 = problem.initial_state
-    near = s0 + np.array([0.09, -0.09, 0.05, -0.05])
-    far = s0 + np.array([0.0, 0.0, 0.2, 0.0])
+    near = s0 + np.array([0.035, -0.035, 0.14, -0.3])   # START_TOL of each range
+    far = s0 + np.array([0.0, 0.0, 0.16, 0.0])
     for t in range(RESTART_AFTER):
         planner.act(near)                      # early in the plan: no restart
     assert planner.t == RESTART_AFTER
@@ -158,5 +158,14 @@ def test_a_state_near_the_start_after_a_while_starts_the_plan_again(rng):
     assert planner.t == RESTART_AFTER + 1      # not a start
     wrapped = near.copy()
     wrapped[1] += 2 * np.pi                    # the same angle, a turn on
-    planner.act(wrapped)
-    assert planner.t == 1                      # started again
+    planner.plan[:] = (planner.plan + 1) % 3
+    first = planner.act(wrapped)
+    assert planner.t == 1                      # started again, from the first plan:
+    fresh = Replanner(problem, plan, planner.settings, 0.02)
+    assert fresh.act(wrapped) == first and fresh.plan.tolist() == planner.plan.tolist()
+    late = Replanner(problem, plan, planner.settings, 0.02, delay=2)
+    for t in range(RESTART_AFTER):
+        late.act(far)
+    assert late.in_flight != [0.0, 0.0]
+    late.act(near)
+    assert late.t == 1 and late.in_flight[0] == 0.0   # the commands in flight forgotten

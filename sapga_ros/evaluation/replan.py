@@ -37,8 +37,9 @@ from sapga_ros.evaluation.replan_settings import ReplanSettings
 PLAN_LANES = 16        # mutants of one round, stepped side by side
 S_PLAN = 7             # the planner's stream of draws (the disturbances use 0-4)
 FAR = 1e4              # a plan that never enters S_delta scores FAR (1 + its delta*)
-START_TOL = 0.1        # a state this near the initial one in every coordinate is a start,
-RESTART_AFTER = 50     # ... once the plan has run this many steps: the plan starts again
+START_TOL = 0.006      # a state this near the initial one in every coordinate, as a share
+RESTART_AFTER = 50     # of its range, is a start once the plan has run this many steps
+MAX_PLAN = 100_000     # steps of a plan at most (each re-plan scores the rest of it)
 
 
 @kernel(nogil=True)
@@ -129,6 +130,9 @@ class Replanner:
         if not problem.ends_in_goal:
             raise SapgaError(f'{problem.name}: re-planning needs an episode that ends in '
                              'S_delta (a hold task is not scored by entering it)')
+        if len(plan) > MAX_PLAN:
+            raise SapgaError(f're-planning: a plan of {len(plan)} steps is longer than '
+                             f'{MAX_PLAN} (every re-plan scores the rest of it)')
         from sapga_ros.evaluation.evaluator import model_id
         self.problem, self.settings, self.delta, self.delay = problem, settings, delta, delay
         self.first = np.ascontiguousarray(plan, dtype=np.int64)
@@ -156,12 +160,12 @@ class Replanner:
         return S[:, 0].copy()
 
     def at_start(self, seen: np.ndarray) -> bool:
-        """Whether ``seen`` is within START_TOL of the problem's initial state in every
-        coordinate (angles the short way round)."""
+        """Whether ``seen`` is within START_TOL of its range of the problem's initial state
+        in every coordinate (angles the short way round)."""
         d = np.abs(np.asarray(seen, dtype=np.float64) - self.problem.initial_state)
         angle = self.problem.is_angle
         d[angle] = np.minimum(d[angle] % (2 * np.pi), 2 * np.pi - d[angle] % (2 * np.pi))
-        return bool(np.all(d <= START_TOL))
+        return bool(np.all(d <= START_TOL * self.problem.ranges))
 
     def act(self, seen: np.ndarray) -> float:
         """The action to issue at this step for the state seen.  A state near the initial
@@ -171,10 +175,12 @@ class Replanner:
             self.reset()
         n = len(self.plan)
         t = min(self.t, n - 1)
-        if self.t % self.settings.replan_every == 0 and self.t < n:
+        horizon = n - self.delay          # the commands that act before the episode's end
+        if self.t % self.settings.replan_every == 0 and self.t < horizon:
             s = self.predict(np.asarray(seen, dtype=np.float64))
             key = np.uint64(episode_key(self.key, self.t, 0, 0))
-            improve_plan(self.model, s, self.plan, t, n, self.p, self.actions, *self.goal,
+            improve_plan(self.model, s, self.plan[:horizon], t, horizon, self.p, self.actions,
+                         *self.goal,
                          self.problem.is_angle, self.delta, self.settings.replan_rounds,
                          self.settings.replan_window, key)
         value = float(self.actions[self.plan[t]])

@@ -14,7 +14,7 @@ class ReplanSettings:
     """How the planner improves its plan (``sapga eval --replan``)."""
 
     replan_rounds: int = param(26, 'rounds of 16 mutant plans at each re-plan', low=1,
-                               high=10_000)
+                               high=1_000)
     replan_window: int = param(150, 'a mutant redraws actions among the plan\'s next N steps',
                                low=1, high=10 ** 6)
     replan_every: int = param(1, 're-plan every N MDP steps', low=1, high=10 ** 6)

@@ -117,6 +117,9 @@ def run_swingup(args: argparse.Namespace, sup: Supervisor) -> SwingupResult:
     if args.replan and not problem.ends_in_goal:
         raise SapgaError(f'--replan: {problem.name} is a hold task (re-planning needs an '
                          'episode that ends in S_delta)')
+    if args.replan and (args.delta is not None or args.n_step is not None):
+        raise SapgaError('--replan plans for the policy\'s own delta and the problem\'s '
+                         'episode length: no --delta or --n-step with it')
     opts = StackOptions(problem, Path(args.out).resolve(), policy_delta(policy, args.delta),
                         args.episodes, args.mode, args.real_time_factor, args.engine,
                         args.n_step, args.replan)
