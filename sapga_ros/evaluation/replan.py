@@ -175,12 +175,12 @@ class Replanner:
             self.reset()
         n = len(self.plan)
         t = min(self.t, n - 1)
-        horizon = n - self.delay          # the commands that act before the episode's end
-        if self.t % self.settings.replan_every == 0 and self.t < horizon:
+        if self.t % self.settings.replan_every == 0 and self.t < n:
+            # scored to the plan's end: with a delay its last commands act after the
+            # episode's, so an entry planned in its last ``delay`` steps does not happen
             s = self.predict(np.asarray(seen, dtype=np.float64))
             key = np.uint64(episode_key(self.key, self.t, 0, 0))
-            improve_plan(self.model, s, self.plan[:horizon], t, horizon, self.p, self.actions,
-                         *self.goal,
+            improve_plan(self.model, s, self.plan, t, n, self.p, self.actions, *self.goal,
                          self.problem.is_angle, self.delta, self.settings.replan_rounds,
                          self.settings.replan_window, key)
         value = float(self.actions[self.plan[t]])
