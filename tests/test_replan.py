@@ -166,6 +166,6 @@ def test_a_state_near_the_start_after_a_while_starts_the_plan_again(rng):
     late = Replanner(problem, plan, planner.settings, 0.02, delay=2)
     for t in range(RESTART_AFTER):
         late.act(far)
-    assert late.in_flight != [0.0, 0.0]
+    assert late.memory[0].tolist() != [0.0, 0.0]
     late.act(near)
-    assert late.t == 1 and late.in_flight[0] == 0.0   # the commands in flight forgotten
+    assert late.t == 1 and late.memory[0, 0] == 0.0   # the commands in flight forgotten

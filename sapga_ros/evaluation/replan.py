@@ -28,6 +28,7 @@ import numpy as np
 
 from sapga_ros.errors import SapgaError
 from sim_nodes.disturbance import Plant, load_disturbance
+from sapga_ros.evaluation.engine import predict_lanes, remember_lanes
 from sim_nodes.draws import HELD_OUT, episode_key, uniform
 from sim_nodes.goal import goal_arrays, goal_delta, lanes_delta
 from sim_nodes.jit import kernel
@@ -147,17 +148,15 @@ class Replanner:
     def reset(self) -> None:
         self.plan = self.first.copy()
         self.t = 0
-        self.in_flight = [0.0] * self.delay     # commands issued, not yet acting (oldest first)
+        self.memory = np.zeros((1, self.delay))   # commands in flight (oldest first)
 
     def predict(self, seen: np.ndarray) -> np.ndarray:
         """The state when a command issued now acts: the nominal model stepped with the
         commands in flight."""
-        S, a, r = self._one
-        S[:, 0] = seen
-        for command in self.in_flight:
-            a[0] = command
-            step_lanes(self.model, S, a, self.p, 1, r)
-        return S[:, 0].copy()
+        predicted, a, r = self._one
+        predict_lanes(self.model, seen.reshape(-1, 1), self.memory, self.delay, self.p,
+                      predicted, a, r)
+        return predicted[:, 0].copy()
 
     def at_start(self, seen: np.ndarray) -> bool:
         """Whether ``seen`` is within START_TOL of its range of the problem's initial state
@@ -185,7 +184,7 @@ class Replanner:
                          self.settings.replan_window, key)
         value = float(self.actions[self.plan[t]])
         if self.delay:
-            self.in_flight = self.in_flight[1:] + [value]
+            remember_lanes(self.memory, self.delay, np.full(1, value))
         self.t += 1
         return value
 
