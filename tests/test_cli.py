@@ -7,6 +7,8 @@ import sys
 
 import pytest
 
+from process_helpers import sapga_in_process
+
 SAPGA = [sys.executable, '-m', 'sapga_ros.cli.main']
 
 
@@ -59,7 +61,8 @@ def test_eval_json_reproduces_the_training_value(trained):
 def test_eval_replan(trained):
     """``sapga eval --replan``: on the exact model the re-planned episode enters S_delta no
     later than the policy's own; disturbed, the same JSON for any --jobs; its settings are
-    refused without --replan, and out of range, with one line and exit 2."""
+    refused without --replan, and out of range, with one line and exit 2 (the first call a
+    real process, the others in this one)."""
     out, _ = trained
     meta = json.loads(out.read_text())['meta']
     r = sapga('eval', out, '--replan', '--json', '--replan-rounds', '3')
@@ -68,19 +71,21 @@ def test_eval_replan(trained):
     assert got['success_rate'] == 1.0 and got['disturbance'] == 'none'
     assert got['episodes'] == 1 and got['delay'] == 0
     assert got['return']['max'] >= meta['value']
-    assert got['replan'] == {'rounds': 3, 'window': 150, 'every': 1, 'seed': 0}
-    runs = [sapga('eval', out, '--replan', '--disturbance', 'field', '--episodes', '3',
-                  '--delay', '1', '--replan-rounds', '2', '--replan-every', '4', '--json',
-                  '--jobs', jobs) for jobs in (1, 2)]
+    assert got['replan'] == {'rounds': 3, 'window': 150, 'every': 1, 'seed': 0, 'fit': 0.0}
+    runs = [sapga_in_process(['eval', out, '--replan', '--disturbance', 'field', '--episodes',
+                              '3', '--delay', '1', '--replan-rounds', '2', '--replan-every',
+                              '4', '--replan-fit', '0.05', '--json', '--jobs', jobs])
+            for jobs in (1, 2)]
     assert all(r.returncode == 0 for r in runs), runs[0].stderr
     assert runs[0].stdout == runs[1].stdout
     disturbed = json.loads(runs[0].stdout)
-    assert (disturbed['disturbance'], disturbed['episodes'], disturbed['delay']) == \
-        ('field', 3, 1)
+    assert (disturbed['disturbance'], disturbed['episodes'], disturbed['delay'],
+            disturbed['replan']['fit']) == ('field', 3, 1, 0.05)
     for args, text in ((['--replan-rounds', '3'], '--replan-rounds is a setting of --replan'),
                        (['--jobs', '2'], '--jobs is a setting of --replan'),
-                       (['--replan', '--replan-every', '0'], 'replan_every: expected')):
-        r = sapga('eval', out, *args)
+                       (['--replan', '--replan-every', '0'], 'replan_every: expected'),
+                       (['--replan', '--replan-fit', '2'], 'replan_fit: expected')):
+        r = sapga_in_process(['eval', out, *args])
         assert r.returncode == 2 and text in r.stderr, r.stderr
         assert 'Traceback' not in r.stderr
 

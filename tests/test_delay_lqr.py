@@ -11,9 +11,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -27,15 +24,16 @@ from sapga_ros.policies.exemplar import ExemplarPolicy
 from sapga_ros.policies.runnable import policy_from_json
 from sim_nodes.disturbance import Disturbance
 from sim_nodes.goal import delta_of
+from process_helpers import sapga_in_process
 from sim_nodes.problem import load_problem
 
-SAPGA = [sys.executable, '-m', 'sapga_ros.cli.main']
 STEPS = 1000
 
 
 def sapga(*args):
-    return subprocess.run([*SAPGA, *map(str, args)], capture_output=True, text=True,
-                          env={**os.environ}, timeout=300)
+    """``sapga ARGS`` in this process (the commands' own processes are tested in
+    test_cli.py)."""
+    return sapga_in_process(list(args))
 
 
 @pytest.fixture(scope='module')

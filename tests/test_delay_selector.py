@@ -13,9 +13,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -29,15 +26,15 @@ from sapga_ros.policies.classical import AHEAD_KIND, ahead, with_catch
 from sapga_ros.policies.runnable import policy_from_json
 from sapga_ros.training.loop import TrainConfig, train
 from sim_nodes.disturbance import Disturbance, load_disturbance
+from process_helpers import sapga_in_process
 from sim_nodes.problem import load_problem
 from test_disturbance import plant_episode
 
-SAPGA = [sys.executable, '-m', 'sapga_ros.cli.main']
-
 
 def sapga(*args):
-    return subprocess.run([*SAPGA, *map(str, args)], capture_output=True, text=True,
-                          env={**os.environ}, timeout=300)
+    """``sapga ARGS`` in this process (the commands' own processes are tested in
+    test_cli.py)."""
+    return sapga_in_process(list(args))
 
 
 def late(d: int) -> Disturbance | None:

@@ -9,11 +9,12 @@ import pytest
 
 from sapga_ros.errors import SapgaError
 from sapga_ros.evaluation.evaluator import model_id
-from sapga_ros.evaluation.replan import (FAR, PLAN_LANES, RESTART_AFTER, Replanner, first_plan,
-                                         improve_plan, plan_scores, planned_episode,
-                                         planned_episodes)
-from sapga_ros.evaluation.replan_settings import ReplanSettings
+from sapga_ros.evaluation.replan import (FAR, PLAN_LANES, RESTART_AFTER, PlanningSelector,
+                                         Replanner, first_plan, improve_plan, plan_scores,
+                                         planned_episode, planned_episodes)
+from sapga_ros.evaluation.replan_settings import ReplanSettings, planner_delay
 from sapga_ros.optim.operators import random_exemplars
+from sapga_ros.policies.classical import ahead
 from sim_nodes.disturbance import Disturbance, Plant, load_disturbance
 from sim_nodes.goal import goal_arrays, goal_delta
 from sim_nodes.models.dispatch import step_lanes
@@ -134,12 +135,25 @@ def test_disturbed_planned_episodes_are_the_same_for_any_thread_count(rng):
     assert not np.array_equal(plant.reset((3, 0, 1, 0)), problem.initial_state)
 
 
+def test_a_planner_predicts_for_the_delay_given_else_the_files_own(rng):
+    """``sapga eval --replan`` and the policy node plan for the same delay: the one given,
+    else the one the policy file's selector is designed for."""
+    problem = load_problem('acrobot')
+    policy = random_exemplars(problem, 20, rng)
+    designed = ahead(random_exemplars(problem, 20, rng), 2)
+    assert (planner_delay(policy, 0), planner_delay(policy, 1)) == (0, 1)
+    assert (planner_delay(designed, 0), planner_delay(designed, 3)) == (2, 3)
+    for p, given, expected in ((policy, 0, 0), (designed, 0, 2), (designed, 1, 1)):
+        p.meta = {'delta': 0.3}
+        assert PlanningSelector(p, ReplanSettings(), given).planner.delay == expected
+
+
 def test_refusals():
-    with pytest.raises(SapgaError, match='hold task'):
+    with pytest.raises(SapgaError, match='replan: acrobot_hold is a hold task'):
         Replanner(load_problem('acrobot_hold'), np.zeros(5, dtype=np.int64),
                   ReplanSettings(), 0.02)
     for bad in ({'replan_rounds': 0}, {'replan_every': 0}, {'replan_window': 0},
-                {'replan_seed': -1}):
+                {'replan_seed': -1}, {'replan_fit': 1.5}):
         with pytest.raises(ConfigError, match=next(iter(bad))):
             ReplanSettings(**bad)
 

@@ -1,8 +1,8 @@
 """Decision-time planning over ROS: a policy node with ``replan`` (real rclpy nodes over
-DDS) against a simulator with a spread start, sensor noise, latency and model error plays,
-episode by episode, the offline planned episode of the same draws
-(``sapga_ros.evaluation.replan``), bit for bit: the plan starts again at the second
-episode's first state, which is not the problem's initial state."""
+DDS), fitting its model, against a simulator with a spread start, sensor noise, latency and
+model error plays, episode by episode, the offline planned episode of the same draws
+(``sapga_ros.evaluation.replan``), bit for bit: the plan and the fit start again at the
+second episode's first state, which is not the problem's initial state."""
 from __future__ import annotations
 
 import numpy as np
@@ -28,12 +28,12 @@ def test_a_replanning_policy_node_plays_the_offline_planned_episodes(ros, tmp_pa
     profile.write_text('initial_spread: 0.02\nsensor_sigma: 0.002\nlatency: 1\n'
                        'mismatch: {masses: 0.05, lengths: 0.05}\n')
     settings = ReplanSettings(replan_rounds=2, replan_window=60, replan_every=3,
-                              replan_seed=5)
+                              replan_seed=5, replan_fit=0.05)
     offline = planned_episodes(policy, 0.3, str(profile), 2, 9, settings, delay=1)
     assert offline[0]['return'] != offline[1]['return']        # two different plants
     assert all(o['steps'] >= 50 for o in offline)   # RESTART_AFTER: the next start is seen
     params = {'replan': True, 'delay': 1, 'replan_rounds': 2, 'replan_window': 60,
-              'replan_every': 3, 'replan_seed': 5}
+              'replan_every': 3, 'replan_seed': 5, 'replan_fit': 0.05}
     probe, _ = run_lockstep(ros, problem, policy, tmp_path / 'policy.json', 0.3,
                             policy_params=params, disturbance=str(profile),
                             disturbance_seed=9)

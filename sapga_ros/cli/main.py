@@ -181,14 +181,14 @@ def _eval_replanned(args, policy) -> int:
     import os
 
     from sapga_ros.evaluation.replan import replanned
-    from sapga_ros.policies.classical import selector_delay
+    from sapga_ros.evaluation.replan_settings import planner_delay
     from sapga_ros.policies.kinds import policy_delta
     delta = policy_delta(policy, args.delta)
     settings = build(ReplanSettings, lambda name: getattr(args, name))
     episodes = args.episodes if args.disturbance else 1
     jobs = args.jobs or os.cpu_count() or 1
     out = replanned(policy, delta, args.disturbance or 'none', episodes, args.seed, settings,
-                    args.delay or selector_delay(policy), args.max_steps, jobs)
+                    planner_delay(policy, args.delay), args.max_steps, jobs)
     if args.json:
         print(dumps(out))
         return 0

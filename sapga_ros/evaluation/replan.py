@@ -29,11 +29,12 @@ import numpy as np
 from sapga_ros.errors import SapgaError
 from sim_nodes.disturbance import Plant, load_disturbance
 from sapga_ros.evaluation.engine import predict_lanes, remember_lanes
+from sapga_ros.evaluation.model_fit import ModelFit
 from sim_nodes.draws import HELD_OUT, episode_key, uniform
 from sim_nodes.goal import goal_arrays, goal_delta, lanes_delta
 from sim_nodes.jit import kernel
 from sim_nodes.models.dispatch import step_lanes
-from sapga_ros.evaluation.replan_settings import ReplanSettings
+from sapga_ros.evaluation.replan_settings import ReplanSettings, check_plannable, planner_delay
 
 PLAN_LANES = 16        # mutants of one round, stepped side by side
 S_PLAN = 7             # the planner's stream of draws (the disturbances use 0-4)
@@ -128,9 +129,7 @@ class Replanner:
 
     def __init__(self, problem, plan: np.ndarray, settings: ReplanSettings, delta: float,
                  delay: int = 0) -> None:
-        if not problem.ends_in_goal:
-            raise SapgaError(f'{problem.name}: re-planning needs an episode that ends in '
-                             'S_delta (a hold task is not scored by entering it)')
+        check_plannable(problem)
         if len(plan) > MAX_PLAN:
             raise SapgaError(f're-planning: a plan of {len(plan)} steps is longer than '
                              f'{MAX_PLAN} (every re-plan scores the rest of it)')
@@ -143,12 +142,18 @@ class Replanner:
         self.goal = goal_arrays(problem)
         self.key = np.uint64(episode_key(settings.replan_seed, 0, 0, 0))  # a numpy word
         self._one = (np.empty((problem.dim, 1)), np.empty(1), np.empty(1))
+        self.fit = ModelFit(problem, self.model, settings.replan_fit) \
+            if settings.replan_fit > 0 else None
         self.reset()
 
     def reset(self) -> None:
         self.plan = self.first.copy()
         self.t = 0
         self.memory = np.zeros((1, self.delay))   # commands in flight (oldest first)
+        self.last = None                          # (state seen, command applied) of t - 1
+        if self.fit is not None:
+            self.fit.reset()
+            self.p = self.fit.params
 
     def predict(self, seen: np.ndarray) -> np.ndarray:
         """The state when a command issued now acts: the nominal model stepped with the
@@ -170,19 +175,28 @@ class Replanner:
         """The action to issue at this step for the state seen.  A state near the initial
         one after RESTART_AFTER steps starts the plan again (a new episode: a robot or a
         simulator whose start is spread cannot say so otherwise)."""
+        seen = np.asarray(seen, dtype=np.float64)
         if self.t >= RESTART_AFTER and self.at_start(seen):
             self.reset()
+        if self.fit is not None:
+            if self.last is not None:
+                self.fit.add(*self.last, seen)
+                self.p = self.fit.params
+            # the command the plant applies during this step: the oldest in flight
+            self.last = (seen.copy(), float(self.memory[0, 0]) if self.delay else None)
         n = len(self.plan)
         t = min(self.t, n - 1)
         if self.t % self.settings.replan_every == 0 and self.t < n:
             # scored to the plan's end: with a delay its last commands act after the
             # episode's, so an entry planned in its last ``delay`` steps does not happen
-            s = self.predict(np.asarray(seen, dtype=np.float64))
+            s = self.predict(seen)
             key = np.uint64(episode_key(self.key, self.t, 0, 0))
             improve_plan(self.model, s, self.plan, t, n, self.p, self.actions, *self.goal,
                          self.problem.is_angle, self.delta, self.settings.replan_rounds,
                          self.settings.replan_window, key)
         value = float(self.actions[self.plan[t]])
+        if self.last is not None and self.last[1] is None:
+            self.last = (self.last[0], value)          # no delay: this command acts now
         if self.delay:
             remember_lanes(self.memory, self.delay, np.full(1, value))
         self.t += 1
@@ -202,7 +216,7 @@ class PlanningSelector:
         delta = policy_delta(policy)
         self.policy = policy
         self.planner = Replanner(problem, first_plan(policy, problem.n_step, delta), settings,
-                                 delta, delay)
+                                 delta, planner_delay(policy, delay))
 
     def __len__(self) -> int:
         return len(self.policy)
@@ -274,7 +288,8 @@ def replanned_episode(policy, delta: float, n_step: int | None = None,
     """The undisturbed re-planned episode as ``Episode.summary()`` gives an episode (what
     ``sapga launch swingup --replan`` compares its lockstep episodes with)."""
     from sim_nodes.goal import hold_measures
-    o = planned_episodes(policy, delta, 'none', 1, 0, settings, delay, n_step)[0]
+    o = planned_episodes(policy, delta, 'none', 1, 0, settings, planner_delay(policy, delay),
+                         n_step)[0]
     return {'return': o['return'], 'delta_star': o['delta_star'], 'steps': o['steps'],
             'reached': o['first_entry'] > 0,
             **hold_measures(o['first_entry'], o['held'], o['steps'], o['contacts'])}
@@ -298,4 +313,5 @@ def replanned(policy, delta: float, disturbance: str, episodes: int, seed: int,
                       [o['steps'] for o in out], [o['contacts'] for o in out],
                       [o['delta_star'] for o in out], [o['return'] for o in out]),
             'replan': {'rounds': settings.replan_rounds, 'window': settings.replan_window,
-                       'every': settings.replan_every, 'seed': settings.replan_seed}}
+                       'every': settings.replan_every, 'seed': settings.replan_seed,
+                       'fit': settings.replan_fit}}

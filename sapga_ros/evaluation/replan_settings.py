@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from sapga_ros.errors import SapgaError
 from sim_nodes.params import Param, check, param
 
 JOBS = Param('jobs', 1, 'threads running the re-planned episodes; 0: every core', low=0)
@@ -19,6 +20,25 @@ class ReplanSettings:
                                low=1, high=10 ** 6)
     replan_every: int = param(1, 're-plan every N MDP steps', low=1, high=10 ** 6)
     replan_seed: int = param(0, 'seed of the planner\'s mutations', low=0)
+    replan_fit: float = param(0.0, 'relative prior spread of the masses and lengths the '
+                              'planner fits to the transitions it sees; 0: the nominal model',
+                              low=0.0, high=1.0)
 
     def __post_init__(self) -> None:
         check(self)
+
+
+def check_plannable(problem, name: str = 'replan') -> None:
+    """One line (``SapgaError``, naming the setting ``name``) unless ``problem``'s episode
+    ends in S_delta: a hold task is scored by staying there, which a plan's score does not
+    measure."""
+    if not problem.ends_in_goal:
+        raise SapgaError(f'{name}: {problem.name} is a hold task (re-planning needs an '
+                         'episode that ends in S_delta)')
+
+
+def planner_delay(policy, delay: int) -> int:
+    """The actuation delay a planner on ``policy`` predicts for: ``delay`` when given (not
+    0), else the delay the policy file's selector is designed for."""
+    from sapga_ros.policies.classical import selector_delay
+    return delay or selector_delay(policy)

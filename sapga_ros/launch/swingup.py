@@ -43,6 +43,7 @@ from pathlib import Path
 from typing import Sequence
 
 from sapga_ros.errors import SapgaError
+from sapga_ros.evaluation.replan_settings import check_plannable
 from sapga_ros.launch.supervisor import Supervisor, launch_main
 from sapga_ros.launch.launch_node import LaunchRos
 from sapga_ros.launch.ros_args import RosOptions, add_ros_arguments
@@ -114,9 +115,8 @@ def run_swingup(args: argparse.Namespace, sup: Supervisor) -> SwingupResult:
     problem = load_problem(args.problem) if args.problem else None
     policy = load_policy(Path(args.policy).resolve(), problem)   # checked before any start
     problem = policy.problem
-    if args.replan and not problem.ends_in_goal:
-        raise SapgaError(f'--replan: {problem.name} is a hold task (re-planning needs an '
-                         'episode that ends in S_delta)')
+    if args.replan:
+        check_plannable(problem, '--replan')
     if args.replan and (args.delta is not None or args.n_step is not None):
         raise SapgaError('--replan plans for the policy\'s own delta and the problem\'s '
                          'episode length: no --delta or --n-step with it')

@@ -59,7 +59,7 @@ from sapga_ros.policies.jsonfile import MAX_POLICY_BYTES
 from sapga_ros.io.bounded import open_regular
 from sapga_ros.nodes.joint_mapping import JointMapping, RobotState
 from sapga_ros.nodes.policy_loader import LoadResult, PolicyLoader, PreparedPolicy, fetch_text
-from sapga_ros.evaluation.replan_settings import ReplanSettings
+from sapga_ros.evaluation.replan_settings import ReplanSettings, check_plannable
 from sapga_ros.evaluation.state_selector import StateSelector
 from sim_nodes.params import build
 from sapga_ros.nodes.policy_params import PARAMETERS, check_setting
@@ -102,10 +102,8 @@ class PolicyNode(GuardedNode):
         self.load_timeout = values['load_timeout']
         self.delay = values['delay']         # run plain exemplar policies as designed for it
         self.replan = values['replan']       # or plan on each policy's episode, that delay ahead
-        if self.replan and not self.problem.ends_in_goal:
-            raise SapgaError(f'replan: {self.problem.name} is a hold task (re-planning needs '
-                             'an episode that ends in S_delta)')
         if self.replan:
+            check_plannable(self.problem)
             from sapga_ros.evaluation.replan import PlanningSelector
             settings = build(ReplanSettings, lambda name: values[name])
             self.make_selector = lambda policy: PlanningSelector(policy, settings, self.delay)

@@ -79,7 +79,7 @@ def warm(problems: list[str] | None = None) -> float:
             plant.push(s)
         if problem.ends_in_goal:                # decision-time planning (sapga eval --replan)
             planned_episodes(policies[0], problem.default_delta, 'field', 1, 0,
-                             ReplanSettings(replan_rounds=1), 1, 3)
+                             ReplanSettings(replan_rounds=1, replan_fit=0.05), 1, 6)
         base = TrainConfig(problem=name, steps=2_000, jobs=1, params=SAPGA)
         train(base)
         train(replace(base, method='ql', steps=1_000, ql=QlParams(chunk_steps=1_000)))
