@@ -2,13 +2,11 @@
 a parent and mutated log-normally from a generator of its own; the returned policy carries
 the best individual's c; checkpoints keep scales and generator; bad settings are one line."""
 import json
-import os
-import subprocess
-import sys
 
 import numpy as np
 import pytest
 
+from process_helpers import sapga_in_process
 from sapga_ros.evaluation.classical_design import classical_policy
 from sapga_ros.evaluation.evaluator import Evaluator
 from sapga_ros.io.checkpoint import load_checkpoint, save_checkpoint
@@ -114,9 +112,7 @@ def test_the_returned_policy_carries_the_best_scale_and_evaluates_to_its_value(t
     assert policy.c == _design(problem).c * scale
     out = tmp_path / 'hybrid.json'
     out.write_text(policy.to_json())
-    got = subprocess.run([sys.executable, '-m', 'sapga_ros.cli.main', 'eval', str(out),
-                          '--json'], capture_output=True, text=True, env={**os.environ},
-                         timeout=300)
+    got = sapga_in_process(['eval', out, '--json'])
     assert got.returncode == 0, got.stderr
     assert json.loads(got.stdout)['return'] == policy.meta['value']
     assert json.loads(out.read_text())['catch']['c'] == policy.c
@@ -169,9 +165,8 @@ def test_kill_and_resume_with_the_catch_evolving_equals_the_uninterrupted_run(tm
     (['--catch-sigma', '0.5'], 'needs catch lqr'),
 ])
 def test_bad_catch_sigma_is_one_line_and_exit_2(args, needle, tmp_path):
-    r = subprocess.run([sys.executable, '-m', 'sapga_ros.cli.main', 'train', '--problem',
-                        PROBLEM, '--steps', '1000', '--out', str(tmp_path / 'p.json'), *args],
-                       capture_output=True, text=True, env={**os.environ}, timeout=300)
+    r = sapga_in_process(['train', '--problem', PROBLEM, '--steps', '1000', '--out',
+                          tmp_path / 'p.json', *args])
     assert r.returncode == 2 and needle in r.stderr and 'Traceback' not in r.stderr
     errors = [line for line in r.stderr.splitlines() if 'error' in line]
     assert len(errors) == 1

@@ -2,7 +2,6 @@
 hold fraction, end-stop contacts), the hold bonus, and the classical controller policy."""
 import json
 import math
-import os
 import subprocess
 import sys
 
@@ -13,16 +12,16 @@ from sapga_ros.cli import main as cli
 from sapga_ros.evaluation.evaluator import Evaluator
 from sapga_ros.policies.exemplar import ExemplarPolicy
 from sapga_ros.policies.runnable import load_policy
+from process_helpers import sapga_in_process
 from sim_nodes import reference
 from sim_nodes.errors import ConfigError
 from sim_nodes.problem import load_problem, parse_problem
 
-SAPGA = [sys.executable, '-m', 'sapga_ros.cli.main']
-
 
 def sapga(*args):
-    return subprocess.run([*SAPGA, *map(str, args)], capture_output=True, text=True,
-                          env={**os.environ}, timeout=300)
+    """``sapga ARGS`` in this process (the commands' own processes are tested in
+    test_cli.py)."""
+    return sapga_in_process(list(args))
 
 
 def recompute(problem, ep, delta):
@@ -164,7 +163,8 @@ def test_a_nan_in_a_classical_file_is_refused(classical, tmp_path):
     _, out = classical
     bad = tmp_path / 'nan.json'
     bad.write_text(out.read_text().replace('"c": ', '"c": NaN, "x": ', 1))
-    r = sapga('eval', bad)
+    r = subprocess.run([sys.executable, '-m', 'sapga_ros.cli.main', 'eval', str(bad)],
+                       capture_output=True, text=True, timeout=300)    # a real process
     assert r.returncode == 2 and 'Traceback' not in r.stderr
     assert len(r.stderr.strip().splitlines()) == 1
 

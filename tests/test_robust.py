@@ -3,13 +3,11 @@ percentile its value) and the robustness evaluation (``sapga eval --disturbance`
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import sys
 
 import numpy as np
 import pytest
 
+from process_helpers import sapga_in_process
 from sapga_ros.errors import ConfigError
 from sapga_ros.evaluation.evaluator import Evaluator
 from sapga_ros.evaluation.robust import Robust, evaluate_robust
@@ -19,7 +17,6 @@ from sapga_ros.training.loop import TrainConfig, train
 from sim_nodes.disturbance import load_disturbance
 
 SMALL = SapgaParams(n_pop=12, n_child=3, l_min=10, l_max=20)
-SAPGA = [sys.executable, '-m', 'sapga_ros.cli.main']
 
 
 def robust_run(**kw):
@@ -116,13 +113,11 @@ def test_redraw_without_disturbed_sapga_episodes_is_refused(kw, needle):
 
 def test_eval_reports_success_rate_and_distributions(tmp_path):
     policy = tmp_path / 'lqr.json'
-    made = subprocess.run([*SAPGA, 'classical', '--problem', 'acrobot_hold', '--out', policy],
-                          capture_output=True, text=True, env={**os.environ}, timeout=300)
+    made = sapga_in_process(['classical', '--problem', 'acrobot_hold', '--out', policy])
     assert made.returncode == 0, made.stderr
 
     def evaluate(*args):
-        out = subprocess.run([*SAPGA, 'eval', policy, '--json', *args], capture_output=True,
-                             text=True, env={**os.environ}, timeout=300)
+        out = sapga_in_process(['eval', policy, '--json', *args])
         assert out.returncode == 0, out.stderr
         return json.loads(out.stdout)
     none = evaluate('--disturbance', 'none', '--episodes', '4')
@@ -133,20 +128,18 @@ def test_eval_reports_success_rate_and_distributions(tmp_path):
     assert set(pushed['delta_star']) == {'mean', 'min', 'q10', 'median', 'q90', 'max'}
     assert pushed['rail_contacts'] == {'total': 0, 'episodes_with': 0}
     assert pushed['hold_fraction']['min'] < pushed['hold_fraction']['max']
-    bad = subprocess.run([*SAPGA, 'eval', policy, '--disturbance', 'gust'],
-                         capture_output=True, text=True, env={**os.environ}, timeout=300)
+    bad = sapga_in_process(['eval', policy, '--disturbance', 'gust'])
     assert bad.returncode == 2 and "unknown disturbance 'gust'" in bad.stderr
     assert 'Traceback' not in bad.stderr
 
 
 def test_robustness_curves(tmp_path):
     policy = tmp_path / 'lqr.json'
-    subprocess.run([*SAPGA, 'classical', '--problem', 'acrobot_hold', '--out', policy],
-                   capture_output=True, env={**os.environ}, timeout=300, check=True)
+    assert sapga_in_process(['classical', '--problem', 'acrobot_hold', '--out',
+                             policy]).returncode == 0
     out = tmp_path / 'curves'
-    done = subprocess.run([*SAPGA, 'robustness', policy, policy, '--out', out, '--disturbance',
-                           'push', '--scales', '0,4', '--episodes', '3'],
-                          capture_output=True, text=True, env={**os.environ}, timeout=300)
+    done = sapga_in_process(['robustness', policy, policy, '--out', out, '--disturbance',
+                             'push', '--scales', '0,4', '--episodes', '3'])
     assert done.returncode == 0, done.stderr
     rows = json.loads((out / 'robustness.json').read_text())
     assert [(r['scale'], r['episodes']) for r in rows] == [(0, 3), (4, 3)] * 2

@@ -12,7 +12,9 @@ actions drawn anew) stepped side by side by the engine's model kernel, the best 
 when it is no worse than the plan.  A plan's score: the steps until it enters S_delta, else
 1e4 (1 + its delta*): the soonest entry, else the nearest approach.  Then it issues the
 plan's action for this step.  Re-planning from what it sees every few steps is the
-feedback; the model's error and the sensor noise are what it cannot plan for.
+feedback.  With ``replan_fit`` the model it plans and predicts on is not the nominal one but
+the masses and lengths fitted to the transitions seen so far in the episode
+(``sapga_ros.evaluation.model_fit``); the sensor noise is what it cannot plan for.
 
 The mutations are counter-based draws (``sim_nodes.draws.uniform``) keyed by the planner's
 seed and the step, so a planned episode is a pure function of the states seen: the same for
