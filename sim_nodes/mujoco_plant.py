@@ -2,7 +2,9 @@
 
 ``MujocoPlant(problem)`` builds an MJCF model from the problem YAML's ``physics`` (masses,
 lengths, inertias, gravity) and steps it with MuJoCo's own RK4 integrator (``timestep`` =
-the problem's ``dt``; one MDP step holds the effort for ``substeps`` steps).  It speaks like
+the problem's ``dt``; one MDP step holds the effort for ``substeps`` steps);
+``set_physics(p)`` rebuilds it with other physics (a disturbance's drawn model error) and
+``place(s)`` writes a problem state's changed coordinates into its joints (a push).  It speaks like
 a robot that is not ours: its own joint names, its own angle zero and direction, efforts in
 its own joint coordinates (one per actuator, ros2_control's forward command convention).
 
@@ -87,9 +89,11 @@ def _link(name: str, joint: str, mass: float, com: float, inertia: float, length
             f'{inner}</body>')
 
 
-def mjcf(problem: Problem) -> str:
-    """The MJCF document of ``problem``'s model (see the module table)."""
-    ph = problem.physics
+def mjcf(problem: Problem, physics: dict | None = None) -> str:
+    """The MJCF document of ``problem``'s model (see the module table), with ``physics`` in
+    place of the problem's own when given (a plant whose masses and lengths are off).  The
+    single-pole cart stays one pole: of mass m1 + m2 and half-length (l1 + l2) / 2."""
+    ph = problem.physics if physics is None else physics
     g = ph['g']
     if problem.model == 'acrobot':
         l1, l2 = ph['l1'], 2.0 * ph['lc2']
@@ -99,7 +103,8 @@ def mjcf(problem: Problem) -> str:
         actuator = 'elbow'
     else:
         mapping(problem)
-        poles = ([('hinge', ph['m1'] + ph['m2'], ph['l1'])] if _single(problem) else
+        poles = ([('hinge', ph['m1'] + ph['m2'], (ph['l1'] + ph['l2']) / 2.0)]
+                 if _single(problem) else
                  [('hinge1', ph['m1'], ph['l1']), ('hinge2', ph['m2'], ph['l2'])])
         inner = ''.join(_link(f'pole_{j}', j, m, half, m * half * half / 3.0, 2.0 * half)
                         for j, m, half in poles)
@@ -125,9 +130,7 @@ class MujocoPlant:
         self._mujoco = mujoco
         self.problem = problem
         self.map = mapping(problem)
-        self.xml = mjcf(problem)
-        self.model = mujoco.MjModel.from_xml_string(self.xml)
-        self.data = mujoco.MjData(self.model)
+        self._build(problem.params())
         m = self.model
         self.joint_names = tuple(m.joint(k).name for k in range(m.njnt))
         self.actuator_joints = tuple(m.joint(m.actuator_trnid[k, 0]).name
@@ -139,12 +142,40 @@ class MujocoPlant:
             jm = self.map[c.joint]
             self._coords.append((index[jm.robot_joint], jm.offset if c.field == 'position'
                                  else 0.0, jm.direction, c.angle, c.field == 'velocity'))
-        self._p0 = problem.params().copy()
-        self._p0[1] = 0.0                     # substeps = 0: the kernel's reward only
         self._reward_of = model_module(problem.model).mdp_step
         self._limit = problem.physics.get('x_max', math.inf)
         self.substeps = problem.substeps
         self.contact = False                  # the last step touched the joint limit
+
+    def _build(self, p: np.ndarray) -> None:
+        """The MuJoCo model of the packed physics ``p`` ([dt, substeps, *PARAMS])."""
+        names = model_module(self.problem.model).PARAMS
+        self.params = np.array(p, dtype=np.float64)
+        self.xml = mjcf(self.problem, {n: float(v) for n, v in zip(names, self.params[2:])})
+        self.model = self._mujoco.MjModel.from_xml_string(self.xml)
+        self.data = self._mujoco.MjData(self.model)
+        self._p0 = self.params.copy()
+        self._p0[1] = 0.0                     # substeps = 0: the kernel's reward only
+
+    def set_physics(self, p: np.ndarray) -> None:
+        """Rebuild the robot with the packed physics ``p`` when they differ from its own (a
+        disturbance's model error: masses and lengths drawn per episode); the same joints
+        and actuators.  Call ``reset`` after it."""
+        if not np.array_equal(p, self.params):
+            self._build(p)
+
+    def place(self, s: np.ndarray) -> None:
+        """Write into the robot every coordinate of the problem state ``s`` that differs from
+        its own (a push on the problem's state reaches the robot this way)."""
+        now = self.problem_state()
+        for d, (j, off, sign, angle, vel) in enumerate(self._coords):
+            if s[d] == now[d]:
+                continue
+            if vel:
+                self.data.qvel[j] = s[d] / sign
+            else:
+                q = (s[d] - off) / sign
+                self.data.qpos[j] = math.remainder(q, TWO_PI) if angle else q
 
     @property
     def positions(self) -> np.ndarray:

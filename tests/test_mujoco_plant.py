@@ -93,3 +93,63 @@ def test_the_rail_is_a_joint_limit_and_counts_as_a_contact():
 def test_a_problem_without_a_mujoco_model_is_refused_in_one_line():
     with pytest.raises(ConfigError, match='no MuJoCo model of .mountain_car'):
         MujocoPlant(load_problem('mountain_car'))
+
+
+def drawn_physics(problem, episode):
+    """The packed physics of ``field``'s model error for one episode (masses and lengths
+    x U(0.95, 1.05))."""
+    from sim_nodes.disturbance import Plant, load_disturbance
+    plant = Plant(problem, load_disturbance('field'))
+    plant.reset((0, 0, 1, episode))
+    return plant.params
+
+
+@pytest.mark.parametrize('name', ['acrobot', 'pdip'])
+def test_a_robot_with_model_error_is_the_kernel_of_its_drawn_physics(name):
+    """Rebuilt with an episode's drawn masses and lengths, the robot keeps its joints and
+    agrees with the kernel stepped with those parameters as closely as the nominal robot
+    agrees with the nominal kernel, and visibly not with the nominal kernel."""
+    problem = load_problem(name)
+    steps, tolerance = (40, 1e-9) if name == 'acrobot' else (10, 0.1)
+    plant = MujocoPlant(problem)
+    joints = plant.joint_names
+    kernel = model_module(problem.model).mdp_step
+    p = drawn_physics(problem, 3)
+    assert not np.array_equal(p, problem.params())
+    plant.set_physics(p)
+    assert plant.joint_names == joints and np.array_equal(plant.params, p)
+    rng = np.random.default_rng(1)
+    s = problem.initial_state.copy()
+    nominal = s.copy()
+    plant.reset(s)
+    for a in rng.choice(problem.action_values, steps):
+        kernel(s, a, p)
+        kernel(nominal, a, problem.params())
+        plant.step(plant.problem_effort(a))
+    assert difference(s, plant.problem_state(), problem.is_angle) < tolerance
+    if name == 'acrobot':
+        assert difference(nominal, plant.problem_state(), problem.is_angle) > 1e-3
+    plant.set_physics(problem.params())                   # back to the nominal robot
+    assert plant.xml == MujocoPlant(problem).xml
+
+
+def test_a_push_on_the_problem_state_reaches_the_robot():
+    """The simulator pushes its problem state; the MuJoCo engine writes the pushed
+    coordinate into the robot before stepping: the kernel's step from the pushed state."""
+    from sim_nodes.ros.mujoco_engine import MujocoEngine
+    problem = load_problem('acrobot')
+    engine = MujocoEngine(problem)
+    kernel = model_module(problem.model).mdp_step
+    p = problem.params()
+    s = problem.initial_state.copy()
+    engine.reset(s, p)
+    for a in (2.0, -2.0, 2.0):
+        engine.mdp_step(s, a, p)
+    pushed = s.copy()
+    pushed[2] += 0.3                                       # theta1 rate
+    expected, unpushed = pushed.copy(), s.copy()
+    kernel(expected, 0.0, p)
+    kernel(unpushed, 0.0, p)
+    engine.mdp_step(pushed, 0.0, p)
+    assert difference(pushed, expected, problem.is_angle) < 1e-9
+    assert difference(pushed, unpushed, problem.is_angle) > 1e-3

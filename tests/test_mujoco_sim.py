@@ -1,6 +1,7 @@
 """The simulator node with ``engine:=mujoco`` over real Fast DDS: the MuJoCo robot's joint
 states (its names, its zero) answered by ``std_msgs/Float64MultiArray`` effort commands, the
-same trajectory as the plant stepped offline, and malformed efforts ignored."""
+same trajectory as the plant stepped offline (with a profile's model error, the robot of the
+episode's drawn masses and lengths), and malformed efforts ignored."""
 from __future__ import annotations
 
 import threading
@@ -11,6 +12,8 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
 from ros_helpers import PROBE_QOS, Probe, isolated_ros
+from sim_nodes.disturbance import Plant, load_disturbance
+from sim_nodes.draws import HELD_OUT
 from sim_nodes.mujoco_plant import MujocoPlant
 from sim_nodes.problem import load_problem
 from sim_nodes.ros.common import stamp_ns
@@ -52,12 +55,19 @@ class EffortDriver(Node):
             self.pub.publish(Float64MultiArray(data=self.efforts[k]))
 
 
-def test_the_mujoco_robot_is_driven_by_effort_arrays(ros):
+@pytest.mark.parametrize('off', [False, True])
+def test_the_mujoco_robot_is_driven_by_effort_arrays(ros, tmp_path, off):
+    """``off``: under a profile of model error alone, the robot is the one rebuilt with the
+    episode's drawn masses and lengths."""
     problem = load_problem('acrobot')
     rng = np.random.default_rng(3)
     efforts = [[float(v)] for v in rng.choice([-2.0, 0.0, 2.0], 30)]
-    sim = ros.start(SimNode, params={'engine': 'mujoco', 'mode': 'lockstep',
-                                     'republish_period': 0.05})
+    params = {'engine': 'mujoco', 'mode': 'lockstep', 'republish_period': 0.05}
+    if off:
+        profile = tmp_path / 'off.yaml'
+        profile.write_text('mismatch: {masses: 0.05, lengths: 0.05}\n')
+        params.update(disturbance=str(profile), disturbance_seed=4)
+    sim = ros.start(SimNode, params=params)
     probe = ros.start(Probe, problem=problem)
     ros.wait_for(lambda: sim._effort_sub.get_publisher_count() == 0 and probe.states,
                  'the first state')
@@ -68,6 +78,11 @@ def test_the_mujoco_robot_is_driven_by_effort_arrays(ros):
     assert np.allclose(states[0].position, 0.0)              # hanging down: MuJoCo's zero
     assert sim.commands.ignored == 1                          # the wrong length
     plant = MujocoPlant(problem)                              # the same robot, offline
+    if off:
+        drawn = Plant(problem, load_disturbance(str(profile)))
+        drawn.reset((4, 0, HELD_OUT, 0))
+        plant.set_physics(drawn.params)
+        assert not np.array_equal(drawn.params, problem.params())
     plant.reset(problem.initial_state)
     good = efforts
     for k in range(30):

@@ -35,12 +35,18 @@ class MujocoEngine:
         self._actuated = plant.joint_names.index(self.actuator_joint)
         self._direction = plant.problem_effort(1.0)
 
-    def reset(self, s: np.ndarray) -> None:
+    def reset(self, s: np.ndarray, p: np.ndarray | None = None) -> None:
+        """Start an episode at the problem state ``s``, the robot rebuilt with the packed
+        physics ``p`` when given (the episode's model error)."""
+        if p is not None:
+            self.plant.set_physics(p)
         self.plant.reset(s)
 
     def mdp_step(self, s: np.ndarray, action: float, p: np.ndarray) -> float:
-        """Hold ``action`` (the problem's convention) for one MDP step; ``s`` gets the
-        problem state of the robot; the step's reward."""
+        """Hold ``action`` (the problem's convention) for one MDP step from ``s`` (any
+        coordinate of it that is not the robot's, a push, is written into the robot first);
+        ``s`` gets the problem state of the robot; the step's reward."""
+        self.plant.place(s)
         self.plant.step(self._direction * action)
         self.plant.problem_state(s)
         return self.plant.reward(s)

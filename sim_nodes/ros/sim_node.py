@@ -385,8 +385,8 @@ class SimNode(GuardedNode):
         self._plant.n_step = self.settings.n_step
         self._s[:] = self._plant.reset((self._draw_seed, 0, HELD_OUT, self._episode))
         self._seen = self._plant.observe(self._s)
-        if self._robot is not None:     # the MuJoCo robot starts where the plant does
-            self._robot.reset(self._s)
+        if self._robot is not None:     # the MuJoCo robot starts where the plant does,
+            self._robot.reset(self._s, self._plant.params)   # with its model error
         self._episode += 1
         self._step = 0
         self._return = 0.0
