@@ -3,10 +3,11 @@
 ``MujocoPlant(problem)`` builds an MJCF model from the problem YAML's ``physics`` (masses,
 lengths, inertias, gravity) and steps it with MuJoCo's own RK4 integrator (``timestep`` =
 the problem's ``dt``; one MDP step holds the effort for ``substeps`` steps);
-``set_physics(p)`` rebuilds it with other physics (a disturbance's drawn model error) and
-``place(s)`` writes a problem state's changed coordinates into its joints (a push).  It speaks like
-a robot that is not ours: its own joint names, its own angle zero and direction, efforts in
-its own joint coordinates (one per actuator, ros2_control's forward command convention).
+``set_physics(p)`` rebuilds it with other physics (a disturbance's drawn model error),
+``place(s, before)`` writes a problem state's changed coordinates into its joints (a push)
+and ``seen_joints`` adds a sensor's noise to what its joints report.  It speaks like a robot
+that is not ours: its own joint names, its own angle zero and direction, efforts in its own
+joint coordinates (one per actuator, ros2_control's forward command convention).
 
 ===========  =================  ==========================================================
 model        robot joints       convention (MJCF: zero hanging down, hinge axis +y)
@@ -164,18 +165,34 @@ class MujocoPlant:
         if not np.array_equal(p, self.params):
             self._build(p)
 
-    def place(self, s: np.ndarray) -> None:
+    def place(self, s: np.ndarray, before: np.ndarray) -> None:
         """Write into the robot every coordinate of the problem state ``s`` that differs from
-        its own (a push on the problem's state reaches the robot this way)."""
-        now = self.problem_state()
+        ``before``, the problem state the robot was last put in or reported (a push on the
+        problem's state reaches the robot this way; nothing else is written)."""
         for d, (j, off, sign, angle, vel) in enumerate(self._coords):
-            if s[d] == now[d]:
+            if s[d] == before[d]:
                 continue
             if vel:
                 self.data.qvel[j] = s[d] / sign
             else:
                 q = (s[d] - off) / sign
                 self.data.qpos[j] = math.remainder(q, TWO_PI) if angle else q
+
+    def seen_joints(self, seen: np.ndarray, state: np.ndarray) -> tuple:
+        """The robot's (positions, velocities) as a sensor reports them when the problem
+        state ``state`` is seen as ``seen`` (the difference, sensor noise, added to each
+        joint in its own convention; none: the joints themselves, bit for bit)."""
+        q, v = self.data.qpos.copy(), self.data.qvel.copy()
+        for d, (j, off, sign, angle, vel) in enumerate(self._coords):
+            diff = seen[d] - state[d]
+            if diff == 0.0:
+                continue
+            diff = math.remainder(diff, TWO_PI) if angle else diff
+            if vel:
+                v[j] = self.data.qvel[j] + diff / sign
+            else:
+                q[j] = self.data.qpos[j] + diff / sign
+        return q, v
 
     @property
     def positions(self) -> np.ndarray:

@@ -153,3 +153,42 @@ def test_a_push_on_the_problem_state_reaches_the_robot():
     engine.mdp_step(pushed, 0.0, p)
     assert difference(pushed, expected, problem.is_angle) < 1e-9
     assert difference(pushed, unpushed, problem.is_angle) > 1e-3
+
+
+def test_a_spread_start_of_the_single_pole_robot_is_not_rewritten_by_the_first_step():
+    """The single-pole cart's two pole angles name one hinge: a spread start puts the hinge
+    where the second says, and the first step starts there (nothing is pushed)."""
+    from sim_nodes.ros.mujoco_engine import MujocoEngine
+    problem = load_problem('pdip_single')
+    engine, alone = MujocoEngine(problem), MujocoPlant(problem)
+    s = problem.initial_state + np.array([0.01, 0.02, -0.03, 0.04, 0.05, -0.06])
+    engine.reset(s.copy(), problem.params())
+    alone.reset(s)
+    engine.mdp_step(s, 5.0, problem.params())
+    alone.step(alone.problem_effort(5.0))
+    assert np.array_equal(engine.plant.positions, alone.positions)
+    assert np.array_equal(engine.plant.velocities, alone.velocities)
+
+
+def test_the_published_joints_carry_the_sensor_noise_and_only_it():
+    """What the MuJoCo robot reports is its joints plus the noise of the state seen (in its
+    own convention), and its joints bit for bit when nothing is added."""
+    from sim_nodes.ros.mujoco_engine import MujocoEngine
+    problem = load_problem('acrobot')
+    engine = MujocoEngine(problem)
+    s = problem.initial_state.copy()
+    engine.reset(s, problem.params())
+    for a in (2.0, 2.0, -2.0):
+        engine.mdp_step(s, a, problem.params())
+    msg = engine.fill(engine.new_msg(), s.copy(), 0.0, 0)
+    assert np.array_equal(msg.position, engine.plant.positions)
+    assert np.array_equal(msg.velocity, engine.plant.velocities)
+    noise = np.array([0.003, -0.002, 0.001, 0.004])
+    seen = s + noise
+    seen[:2] %= 2 * math.pi
+    msg = engine.fill(engine.new_msg(), seen, 0.0, 0)
+    robot = MujocoPlant(problem)                 # the noisy joints mapped back
+    robot.reset(s)
+    robot.data.qpos[:] = msg.position
+    robot.data.qvel[:] = msg.velocity
+    assert difference(robot.problem_state(), seen, problem.is_angle) < 1e-12

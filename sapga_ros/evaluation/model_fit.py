@@ -6,12 +6,16 @@ keeps the last ``WINDOW`` transitions (state seen, command applied, next state s
 estimates a factor on every mass and length of the model's physics (the entries a bench
 measures imperfectly, the ``masses`` and ``lengths`` groups of the disturbance profiles):
 the maximum a posteriori estimate under a log-normal prior of relative spread ``prior``
-around the nominal values and Gaussian residuals of size ``NOISE`` per coordinate, found by
+around the nominal values and residuals of size ``NOISE`` per coordinate, found by
 Gauss-Newton steps (``STEPS`` at each new transition, warm-started from the last estimate),
 the Jacobian by forward differences of the model kernel stepping every transition with each
-nudged parameter vector side by side.  Directions the transitions do not determine stay at
-the prior's centre.  The estimate is a pure function of the transitions, so a controller
-using it is still a function of the states it has seen.
+nudged parameter vector side by side.  The residuals' loss is Huber's: quadratic up to
+``HUBER`` x ``NOISE``, linear beyond (iteratively reweighted), so that a transition the
+model cannot explain -- a push, a state lost on the way so that two steps look like one --
+pulls the estimate no more than a few ordinary ones; a transition with a value that is not
+finite is not kept.  Directions the transitions do not determine stay at the prior's
+centre.  The estimate is a pure function of the transitions, so a controller using it is
+still a function of the states it has seen.
 """
 from __future__ import annotations
 
@@ -25,6 +29,7 @@ WINDOW = 100       # transitions kept (the most recent)
 MIN_SEEN = 4       # transitions before the first estimate
 STEPS = 2          # Gauss-Newton steps per transition
 NOISE = 0.005      # the residual a transition is expected to leave, per coordinate
+HUBER = 3.0        # residuals beyond HUBER x NOISE weigh linearly, not quadratically
 NUDGE = 1e-4       # forward-difference step of a log factor
 LIMIT = 3.0        # an estimate stays within LIMIT x prior of the nominal value (log scale)
 
@@ -85,6 +90,8 @@ class ModelFit:
     def add(self, x: np.ndarray, a: float, y: np.ndarray) -> None:
         """The transition from the state seen ``x`` under the applied command ``a`` to the
         state seen ``y``; the estimate (``params``) updated."""
+        if not (np.all(np.isfinite(x)) and np.isfinite(a) and np.all(np.isfinite(y))):
+            return
         slot = self.count % WINDOW
         self.X[:, slot], self.A[slot], self.Y[:, slot] = x, a, y
         self.count += 1
@@ -107,8 +114,9 @@ class ModelFit:
                              self.problem.is_angle, self.S, self.a, self.r, self.R)
         r0 = self.R[0, :self.problem.dim * n]
         J = (self.R[1:, :self.problem.dim * n] - r0) / NUDGE
-        H = J @ J.T / NOISE ** 2 + np.eye(k) / self.prior ** 2
-        g = J @ r0 / NOISE ** 2 + self.theta / self.prior ** 2
+        w = np.minimum(1.0, HUBER * NOISE / np.maximum(np.abs(r0), 1e-300))  # Huber's
+        H = (J * w) @ J.T / NOISE ** 2 + np.eye(k) / self.prior ** 2
+        g = (J * w) @ r0 / NOISE ** 2 + self.theta / self.prior ** 2
         theta = self.theta - np.linalg.solve(H, g)
         if np.all(np.isfinite(theta)):
             self.theta = np.clip(theta, -LIMIT * self.prior, LIMIT * self.prior)

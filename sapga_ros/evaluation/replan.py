@@ -4,8 +4,8 @@ A trained exemplar policy is a memorised trajectory: off its one initial state, 
 that is not its model, it rarely gets where its episode got.  What it does give is a good
 guess.  ``Replanner`` keeps a plan, one action for every step of the episode, the policy's
 own undisturbed episode at first (the action nearest zero after its end).  Every ``every``
-MDP steps it improves the rest of the plan on the nominal model, from the state predicted
-for when the command it issues now will act (``delay`` steps of the nominal model with the
+MDP steps it improves the rest of the plan on its model, from the state predicted
+for when the command it issues now will act (``delay`` steps of the model with the
 commands in flight, as the delay-aware selector predicts): ``rounds`` rounds of a (1, 16)
 evolution strategy, 16 mutants of the plan (each with one to three of the next ``window``
 actions drawn anew) stepped side by side by the engine's model kernel, the best of them kept
@@ -158,8 +158,8 @@ class Replanner:
             self.p = self.fit.params
 
     def predict(self, seen: np.ndarray) -> np.ndarray:
-        """The state when a command issued now acts: the nominal model stepped with the
-        commands in flight."""
+        """The state when a command issued now acts: the planner's model (nominal, or fitted)
+        stepped with the commands in flight."""
         predicted, a, r = self._one
         predict_lanes(self.model, seen.reshape(-1, 1), self.memory, self.delay, self.p,
                       predicted, a, r)

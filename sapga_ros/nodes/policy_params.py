@@ -87,9 +87,9 @@ MAPPING_PARAMETERS = (
 )
 # decision-time planning (sapga_ros.evaluation.replan); all read-only
 REPLAN_PARAMETERS = (
-    Param('replan', False, "re-plan the policy's own episode on the nominal model at every "
-          "state (decision-time planning; the plan acts on the state predicted 'delay' steps "
-          'ahead): problems whose episode ends in S_delta', read_only=True),
+    Param('replan', False, "re-plan the policy's own episode at every state on the model "
+          "(nominal, or fitted: replan_fit; the plan acts on the state predicted 'delay' "
+          'steps ahead): problems whose episode ends in S_delta', read_only=True),
     *(replace(p, read_only=True) for p in declared(ReplanSettings)),
 )
 PARAMETERS = PARAMETERS + MAPPING_PARAMETERS + REPLAN_PARAMETERS

@@ -30,6 +30,7 @@ class MujocoEngine:
 
     def __init__(self, problem: Problem) -> None:
         self.plant = plant = MujocoPlant(problem)
+        self._state = plant.problem_state()
         self.frame_id = str(problem.ros.get('frame_id', problem.name))
         self.actuator_joint = plant.actuator_joints[0]
         self._actuated = plant.joint_names.index(self.actuator_joint)
@@ -41,14 +42,16 @@ class MujocoEngine:
         if p is not None:
             self.plant.set_physics(p)
         self.plant.reset(s)
+        self._state = s.copy()        # the problem state the robot was put in or reported
 
     def mdp_step(self, s: np.ndarray, action: float, p: np.ndarray) -> float:
         """Hold ``action`` (the problem's convention) for one MDP step from ``s`` (any
         coordinate of it that is not the robot's, a push, is written into the robot first);
         ``s`` gets the problem state of the robot; the step's reward."""
-        self.plant.place(s)
+        self.plant.place(s, self._state)
         self.plant.step(self._direction * action)
         self.plant.problem_state(s)
+        self._state = s.copy()
         return self.plant.reward(s)
 
     def action(self, data: Sequence[float]) -> float:
@@ -66,12 +69,14 @@ class MujocoEngine:
         return msg
 
     def fill(self, msg: JointState, s: np.ndarray, effort: float, stamp: int) -> JointState:
-        """The robot's joints (``s`` is not read: the plant is) and the applied ``effort``
-        (the problem's action, published in the robot's convention) at ``stamp`` [ns]."""
+        """The robot's joints as seen (``s``: the problem state as its sensors see it, their
+        noise added to the joints) and the applied ``effort`` (the problem's action, published
+        in the robot's convention) at ``stamp`` [ns]."""
         eff = [0.0] * len(self.plant.joint_names)
         eff[self._actuated] = self._direction * effort
         set_stamp(msg.header, stamp)
-        msg.position = array.array('d', self.plant.positions)
-        msg.velocity = array.array('d', self.plant.velocities)
+        q, v = self.plant.seen_joints(s, self._state)
+        msg.position = array.array('d', q)
+        msg.velocity = array.array('d', v)
         msg.effort = array.array('d', eff)
         return msg
