@@ -165,12 +165,13 @@ class MujocoPlant:
         if not np.array_equal(p, self.params):
             self._build(p)
 
-    def place(self, s: np.ndarray, before: np.ndarray) -> None:
+    def place(self, s: np.ndarray, before: np.ndarray | None = None) -> None:
         """Write into the robot every coordinate of the problem state ``s`` that differs from
         ``before``, the problem state the robot was last put in or reported (a push on the
-        problem's state reaches the robot this way; nothing else is written)."""
+        problem's state reaches the robot this way; nothing else is written); every
+        coordinate when ``before`` is None."""
         for d, (j, off, sign, angle, vel) in enumerate(self._coords):
-            if s[d] == before[d]:
+            if before is not None and s[d] == before[d]:
                 continue
             if vel:
                 self.data.qvel[j] = s[d] / sign
@@ -207,12 +208,7 @@ class MujocoPlant:
     def reset(self, s: np.ndarray) -> None:
         """Put the robot in the problem state ``s`` (at rest where ``s`` says so)."""
         self._mujoco.mj_resetData(self.model, self.data)
-        for d, (j, off, sign, angle, vel) in enumerate(self._coords):
-            if vel:
-                self.data.qvel[j] = s[d] / sign
-            else:
-                q = (s[d] - off) / sign
-                self.data.qpos[j] = math.remainder(q, TWO_PI) if angle else q
+        self.place(s)
         self._mujoco.mj_forward(self.model, self.data)
         self.contact = False
 

@@ -180,12 +180,9 @@ class Replanner:
         seen = np.asarray(seen, dtype=np.float64)
         if self.t >= RESTART_AFTER and self.at_start(seen):
             self.reset()
-        if self.fit is not None:
-            if self.last is not None:
-                self.fit.add(*self.last, seen)
-                self.p = self.fit.params
-            # the command the plant applies during this step: the oldest in flight
-            self.last = (seen.copy(), float(self.memory[0, 0]) if self.delay else None)
+        if self.fit is not None and self.last is not None:
+            self.fit.add(*self.last, seen)
+            self.p = self.fit.params
         n = len(self.plan)
         t = min(self.t, n - 1)
         if self.t % self.settings.replan_every == 0 and self.t < n:
@@ -197,8 +194,10 @@ class Replanner:
                          self.problem.is_angle, self.delta, self.settings.replan_rounds,
                          self.settings.replan_window, key)
         value = float(self.actions[self.plan[t]])
-        if self.last is not None and self.last[1] is None:
-            self.last = (self.last[0], value)          # no delay: this command acts now
+        if self.fit is not None:
+            # the command the plant applies during this step: the oldest in flight, or
+            # without a delay the one issued now
+            self.last = (seen.copy(), float(self.memory[0, 0]) if self.delay else value)
         if self.delay:
             remember_lanes(self.memory, self.delay, np.full(1, value))
         self.t += 1
