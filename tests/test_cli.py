@@ -90,6 +90,38 @@ def test_eval_replan(trained):
         assert 'Traceback' not in r.stderr
 
 
+def test_robustness_curves_replanned(trained, tmp_path):
+    """``sapga robustness --replan``: each point is what ``sapga eval --replan`` gives on the
+    same draws, the planner predicting for that point's latency (0 undisturbed, 1 under
+    field); the planner's settings are refused without --replan, and a hold task with it."""
+    out, _ = trained
+    curves = tmp_path / 'curves'
+    planner = ['--replan-rounds', '2', '--replan-every', '4', '--replan-fit', '0.05']
+    r = sapga_in_process(['robustness', out, '--out', curves, '--disturbance', 'field',
+                          '--scales', '0,1', '--episodes', '2', '--replan', *planner])
+    assert r.returncode == 0, r.stderr
+    rows = json.loads((curves / 'robustness.json').read_text())
+    assert [(row['scale'], row['delay']) for row in rows] == [(0, 0), (1, 1)]
+    assert rows[0]['success_rate'] == 1.0
+    for row, args in ((rows[0], ['--disturbance', 'none']),
+                      (rows[1], ['--disturbance', 'field', '--delay', '1'])):
+        e = sapga_in_process(['eval', out, '--replan', '--json', '--episodes', '2', *args,
+                              *planner])
+        assert e.returncode == 0, e.stderr
+        alone = json.loads(e.stdout)
+        assert {k: v for k, v in row.items() if k not in ('scale', 'policy', 'disturbance')} \
+            == {k: v for k, v in alone.items() if k != 'disturbance'}
+    assert (curves / 'field.png').stat().st_size > 1000
+    hold = tmp_path / 'lqr.json'
+    assert sapga_in_process(['classical', '--problem', 'acrobot_hold', '--out',
+                             hold]).returncode == 0
+    for args, text in (([out, '--replan-fit', '0.05'], '--replan-fit is a setting of --replan'),
+                       ([hold, '--replan'], 'acrobot_hold is a hold task')):
+        r = sapga_in_process(['robustness', *args, '--out', tmp_path / 'no'])
+        assert r.returncode == 2 and text in r.stderr, r.stderr
+        assert not (tmp_path / 'no').exists()
+
+
 def test_eval_max_steps_and_delta_options(trained):
     """--max-steps caps the episode and --delta 0 never ends it early."""
     out, _ = trained

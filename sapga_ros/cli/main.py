@@ -48,8 +48,9 @@ from sapga_ros.policies.styles import STYLES
 from sapga_ros.launch.prefix import ensure_ament_prefix
 from sapga_ros.policies.classical import RUN_DELAY
 from sim_nodes.options import add_settings
-from sim_nodes.params import DELTA, build, declared
-from sapga_ros.evaluation.replan_settings import JOBS as REPLAN_JOBS, ReplanSettings
+from sim_nodes.params import DELTA, build
+from sapga_ros.evaluation.replan_settings import (JOBS as REPLAN_JOBS, ReplanSettings,
+                                                  refuse_stray_settings)
 
 EXIT_USAGE = 2
 POLICY_DELTA = "goal difficulty (default: the policy's training delta, else the problem's)"
@@ -141,9 +142,7 @@ def cmd_eval(args) -> int:
     from sapga_ros.policies.kinds import load_any_policy, policy_delta
     if args.replan:
         return _eval_replanned(args, load_any_policy(args.policy))
-    planning = sorted(set(args.given) & {'jobs', *(p.name for p in declared(ReplanSettings))})
-    if planning:
-        raise SapgaError(f'--{planning[0].replace("_", "-")} is a setting of --replan')
+    refuse_stray_settings(args.given, args.replan)
     policy = run_ahead(load_any_policy(args.policy), args.delay, args.policy)
     delta = policy_delta(policy, args.delta)
     if args.disturbance:

@@ -29,7 +29,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 from sapga_ros.errors import SapgaError
-from sim_nodes.disturbance import Plant, load_disturbance
+from sim_nodes.disturbance import Disturbance, Plant, load_disturbance
 from sapga_ros.evaluation.engine import predict_lanes, remember_lanes
 from sapga_ros.evaluation.model_fit import ModelFit
 from sim_nodes.draws import HELD_OUT, episode_key, uniform
@@ -263,16 +263,23 @@ def planned_episode(planner: Replanner, plant: Plant, key: tuple) -> dict:
             'held': 1 if first else 0, 'contacts': contacts}
 
 
-def planned_episodes(policy, delta: float, disturbance: str, episodes: int, seed: int,
-                     settings: ReplanSettings, delay: int = 0, n_step: int | None = None,
-                     jobs: int = 1) -> list[dict]:
+def profile_of(disturbance: str | Disturbance) -> Disturbance:
+    """A profile given by name (or .yaml file), or the profile itself (a scaled one)."""
+    if isinstance(disturbance, Disturbance):
+        return disturbance
+    return load_disturbance(disturbance)
+
+
+def planned_episodes(policy, delta: float, disturbance: str | Disturbance, episodes: int,
+                     seed: int, settings: ReplanSettings, delay: int = 0,
+                     n_step: int | None = None, jobs: int = 1) -> list[dict]:
     """``episodes`` held-out episodes of profile ``disturbance`` (the draws ``sapga eval
     --disturbance`` runs the policy alone on) with the policy's plan re-planned; the same
     for any ``jobs``."""
     problem = policy.problem
     n = problem.resolve('n_step', n_step)
     plan = first_plan(policy, n, delta)
-    profile = load_disturbance(disturbance)
+    profile = profile_of(disturbance)
 
     def run(e: int) -> dict:
         planner = Replanner(problem, plan, settings, delta, delay)
@@ -296,7 +303,7 @@ def replanned_episode(policy, delta: float, n_step: int | None = None,
             **hold_measures(o['first_entry'], o['held'], o['steps'], o['contacts'])}
 
 
-def replanned(policy, delta: float, disturbance: str, episodes: int, seed: int,
+def replanned(policy, delta: float, disturbance: str | Disturbance, episodes: int, seed: int,
               settings: ReplanSettings, delay: int = 0, n_step: int | None = None,
               jobs: int = 1) -> dict:
     """``sapga eval --replan``: the robustness summary (``evaluation.robust.summary``) of
@@ -308,7 +315,7 @@ def replanned(policy, delta: float, disturbance: str, episodes: int, seed: int,
                          'policy, not of a Q-learning table')
     out = planned_episodes(policy, delta, disturbance, episodes, seed, settings, delay, n_step,
                            jobs)
-    profile = load_disturbance(disturbance).name
+    profile = profile_of(disturbance).name
     return {**summary(policy.problem, delta, profile, seed, delay,
                       [o['first_entry'] for o in out], [o['held'] for o in out],
                       [o['steps'] for o in out], [o['contacts'] for o in out],

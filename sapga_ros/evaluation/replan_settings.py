@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from sapga_ros.errors import SapgaError
-from sim_nodes.params import Param, check, param
+from sim_nodes.params import Param, check, declared, param
 
 JOBS = Param('jobs', 1, 'threads running the re-planned episodes; 0: every core', low=0)
 
@@ -42,3 +42,11 @@ def planner_delay(policy, delay: int) -> int:
     0), else the delay the policy file's selector is designed for."""
     from sapga_ros.policies.classical import selector_delay
     return delay or selector_delay(policy)
+
+
+def refuse_stray_settings(given, replan: bool) -> None:
+    """One line (``SapgaError``) when a setting of ``--replan`` (``given``: the options named
+    on the command line) comes without ``--replan``."""
+    stray = sorted(set(given) & {JOBS.name, *(p.name for p in declared(ReplanSettings))})
+    if stray and not replan:
+        raise SapgaError(f'--{stray[0].replace("_", "-")} is a setting of --replan')
