@@ -215,6 +215,34 @@ def test_swingup_replan_plays_sapga_eval_replan(tmp_path, capsys):
     assert not (tmp_path / 'h').exists()
 
 
+def test_swingup_compares_disturbed_lockstep_episodes_with_their_own_draws(tmp_path):
+    """``--ros-args -p disturbance:=field -p disturbance_seed:=3 -p delay:=1``: the launch
+    compares each lockstep episode with the evaluation's episode of the same draws (it
+    said DIFFERENT before, against the undisturbed episode), and the bag's episodes are
+    those episodes."""
+    from sapga_ros.evaluation.evaluator import Evaluator
+    from sapga_ros.policies.classical import ahead
+    from sim_nodes.disturbance import load_disturbance
+    from sim_nodes.draws import HELD_OUT
+    problem = load_problem('acrobot')
+    rng = np.random.default_rng(13)
+    near = problem.initial_state + rng.uniform(-1, 1, (40, 4)) * [0.3, 0.3, 2.0, 2.0]
+    policy = ExemplarPolicy(problem, near, rng.integers(0, 3, 40), meta={'delta': 0.3})
+    policy.save(tmp_path / 'small.json')     # exemplars about its swing: its actions vary
+    done = launch(['swingup', '--policy', 'small.json', '--out', 'rec', '--episodes', '2',
+                   '--ros-args', '-p', 'disturbance:=field', '-p', 'disturbance_seed:=3',
+                   '-p', 'delay:=1', '-p', 'executor:=events'], tmp_path)
+    assert ('offline evaluation (sapga eval --disturbance field --seed 3 --delay 1, each '
+            'episode on its own draws): every lockstep episode is equal') in done.stdout
+    ends, _ = recorded_episodes(the_bag(tmp_path / 'rec'))
+    ev = Evaluator(problem, 0.3, disturbance=load_disturbance('field'))
+    eps = [ev.episode(ahead(policy, 1), (3, 0, HELD_OUT, e)) for e in range(2)]
+    assert [(e['step'], e['return'], e['delta_star']) for e in ends] == [
+        (ep.steps, ep.ret, ep.delta_star) for ep in eps]
+    assert eps[0].ret != eps[1].ret != ev.episode(policy, (3, 0, HELD_OUT, 1)).ret  # the
+    # draws and the delay both matter
+
+
 def test_swingup_deploys_a_mountain_car_policy_like_the_pendulums(tmp_path, capsys):
     """A mountain-car policy runs through ``mountain_car_sim``: the recorded episode reaches
     the goal and equals sapga eval."""

@@ -172,3 +172,29 @@ def test_swingup_runs_without_ament_prefix_path_in_the_environment(tmp_path, sma
     assert 'every lockstep episode is equal' in done.stdout
     ends, _ = recorded_episodes(the_bag(tmp_path / 'rec'))
     assert len(ends) == 1
+
+
+def test_a_lockstep_reference_honours_or_declines_the_ros_args(small_policy, capsys):
+    """Only the settings the offline evaluation takes are honoured; any other, or a
+    parameters file, leaves the launch without a reference (it says why), and a launch
+    report names the episodes that differ."""
+    from sapga_ros.launch.reference import lockstep_reference, parameter_overrides
+    from sapga_ros.launch.supervisor import Supervisor
+    from sapga_ros.launch.swingup import SwingupResult, print_swingup
+    from sapga_ros.policies.runnable import load_policy
+    assert parameter_overrides(('--log-level', 'warn', '-p', 'delay:=1', '--param',
+                                'disturbance:=field', '-p', 'replan_fit:=0.05')) == {
+        'delay': 1, 'disturbance': 'field', 'replan_fit': 0.05}
+    policy = load_policy(small_policy)
+    for extra, why in ((('-p', 'n_step:=50'), '--ros-args set n_step'),
+                       (('--params-file', 'p.yaml'), 'a parameters file')):
+        ref = lockstep_reference(policy, 0.3, None, 2, False, extra)
+        assert ref.episodes is None and why in ref.why
+    plain = lockstep_reference(policy, 0.3, None, 2, False, ('-p', 'markers:=false'))
+    assert plain.by == 'sapga eval' and len(plain.episodes) == 1
+    end = {'event': 'step_limit', 'episode': 1, 'step': 400, 'return': -1000.0,
+           'delta_star': 0.5}
+    result = SwingupResult([end, {**end, 'episode': 2}], [],
+                           {**plain.episodes[0], 'by': 'sapga eval'}, False, different=(2,))
+    assert print_swingup(Supervisor(), result) == 1
+    assert 'DIFFERENT from lockstep episode(s) 2' in capsys.readouterr().out

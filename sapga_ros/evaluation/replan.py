@@ -295,9 +295,13 @@ def replanned_episode(policy, delta: float, n_step: int | None = None,
                       settings: ReplanSettings = ReplanSettings(), delay: int = 0) -> dict:
     """The undisturbed re-planned episode as ``Episode.summary()`` gives an episode (what
     ``sapga launch swingup --replan`` compares its lockstep episodes with)."""
+    return episode_summary(planned_episodes(policy, delta, 'none', 1, 0, settings,
+                                            planner_delay(policy, delay), n_step)[0])
+
+
+def episode_summary(o: dict) -> dict:
+    """A planned episode (``planned_episodes``) as ``Episode.summary()`` gives an episode."""
     from sim_nodes.goal import hold_measures
-    o = planned_episodes(policy, delta, 'none', 1, 0, settings, planner_delay(policy, delay),
-                         n_step)[0]
     return {'return': o['return'], 'delta_star': o['delta_star'], 'steps': o['steps'],
             'reached': o['first_entry'] > 0,
             **hold_measures(o['first_entry'], o['held'], o['steps'], o['contacts'])}

@@ -25,6 +25,11 @@ lockstep episode exact:
    steps, return and delta*, the bag, and in lockstep the offline evaluation of the same
    file (``sapga eval``), which must be equal.  The launch fails (exit 1) when an episode
    differs or the finished bag lacks a message of the episodes (``recording/verify.py``).
+   Settings given through ``--ros-args -p`` that the offline evaluation also takes (the
+   simulator's disturbance and its seed, the policy node's delay and planner) are
+   honoured, each disturbed episode compared with the evaluation's episode of the same
+   draws; with any other setting the launch says there is nothing to compare
+   (``reference.py``).
 
 The stack (``stack.py``) and the launch's own node (``launch_node.py``) are shared with
 ``train_deploy``.  ``--engine mujoco`` runs the MuJoCo robot (``sim_node -p engine:=mujoco``)
@@ -47,6 +52,7 @@ from sapga_ros.evaluation.replan_settings import check_plannable
 from sapga_ros.launch.supervisor import Supervisor, launch_main
 from sapga_ros.launch.launch_node import LaunchRos
 from sapga_ros.launch.ros_args import RosOptions, add_ros_arguments
+from sapga_ros.launch.reference import lockstep_reference, matches
 from sapga_ros.launch.stack import (DeployStack, StackOptions, episode_lines,  # noqa: F401
                                     event_summary, offline_episode, same_episode)
 from sapga_ros.policies.kinds import policy_delta
@@ -67,6 +73,8 @@ class SwingupResult:
     offline: dict | None            # lockstep: the offline evaluation of the policy file
     equal: bool | None              # lockstep: every episode equals it
     recording_error: str | None = None  # why the bag is not whole, if it is not
+    different: tuple[int, ...] = ()     # lockstep: the episodes that differ (1-based)
+    no_reference: str = ''          # lockstep: why there is no offline evaluation to compare
 
 
 def positive_int(text: str) -> int:
@@ -141,16 +149,17 @@ def run_swingup(args: argparse.Namespace, sup: Supervisor) -> SwingupResult:
     finally:
         sup.stop()
         ros.close()
-    offline = equal = None
+    result = SwingupResult(ends, stack.recordings(), None, None, stack.check_recording(ends))
     if opts.mode == 'lockstep' and opts.engine == 'kernel':   # MuJoCo is not the kernel
-        if opts.replan:
-            from sapga_ros.evaluation.replan import replanned_episode
-            offline = {**replanned_episode(policy, opts.delta, opts.n_step),
-                       'by': 'sapga eval --replan'}
+        ref = lockstep_reference(policy, opts.delta, opts.n_step, len(ends), opts.replan,
+                                 ros.options.extra)
+        if ref.episodes is None:
+            result.no_reference = ref.why
         else:
-            offline = offline_episode(policy, opts.delta, opts.n_step)
-        equal = all(same_episode(event_summary(e), offline) for e in ends)
-    return SwingupResult(ends, stack.recordings(), offline, equal, stack.check_recording(ends))
+            result.different = tuple(matches(ends, ref.episodes))
+            result.offline = {**ref.episodes[0], 'by': ref.by, 'each': len(ref.episodes) > 1}
+            result.equal = not result.different
+    return result
 
 
 def print_swingup(sup: Supervisor, result: SwingupResult) -> int:
@@ -162,11 +171,18 @@ def print_swingup(sup: Supervisor, result: SwingupResult) -> int:
         lines.append("recording: none written (see the recorder's output)")
     if result.offline is not None:
         o = result.offline
-        lines.append(f'offline evaluation ({o.get("by", "sapga eval")}): return '
-                     f'{o["return"]:.4f}, delta* '
-                     f'{o["delta_star"]:.5f}, steps {o["steps"]}: '
-                     + ('every lockstep episode is equal' if result.equal
-                        else 'DIFFERENT from the lockstep episodes'))
+        verdict = ('every lockstep episode is equal' if result.equal else
+                   'DIFFERENT from lockstep episode(s) '
+                   + ', '.join(str(k) for k in result.different))
+        by = o.get('by', 'sapga eval')
+        if o.get('each'):           # disturbed: each episode has its own draws
+            lines.append(f'offline evaluation ({by}, each episode on its own draws): '
+                         + verdict)
+        else:
+            lines.append(f'offline evaluation ({by}): return {o["return"]:.4f}, delta* '
+                         f'{o["delta_star"]:.5f}, steps {o["steps"]}: ' + verdict)
+    elif result.no_reference:
+        lines.append(f'offline evaluation: none to compare ({result.no_reference})')
     if result.recording_error:
         lines.append(f'error: {result.recording_error}')
     sup.say('\n'.join(lines))
