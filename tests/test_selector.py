@@ -157,3 +157,33 @@ def test_argmin_is_the_first_strict_minimum(rng):
             if rng.random() < 0.1:
                 acc[rng.integers(n)] = -np.nan
             assert argmin(acc, n) == first_strict_minimum(acc), acc
+
+
+def test_the_short_way_round_squares_as_the_min_of_both_ways(rng):
+    """``circular(diff)`` squared is ``min(|diff|, 1 - |diff|)`` squared bit for bit, for the
+    differences of fractions of a turn: random ones, halves, the ends of [0, 1), values one
+    ulp either side of 1/2 and 1/4, tiny ones and NaN."""
+    from sapga_ros.exemplars.distance import circular
+    from sim_nodes.jit import kernel
+
+    @kernel
+    def both(a, b, new, old):
+        for j in range(a.shape[0]):
+            d = a[j] - b[j]
+            c = circular(d)
+            new[j] = c * c
+            m = min(math.fabs(d), 1.0 - math.fabs(d))
+            old[j] = m * m
+
+    edges = np.array([0.0, 0.5, 0.25, 0.75, 1e-300, 5e-324, np.nextafter(1.0, 0.0),
+                      np.nextafter(0.5, 0.0), np.nextafter(0.5, 1.0),
+                      np.nextafter(0.25, 0.0), np.nextafter(0.25, 1.0), np.nan])
+    pairs = np.array(np.meshgrid(edges, edges)).reshape(2, -1)
+    a = np.concatenate([pairs[0], rng.random(200_000), rng.random(1000) * 1e-12])
+    b = np.concatenate([pairs[1], rng.random(200_000), 1.0 - rng.random(1000) * 1e-12])
+    b[-1000:] = np.minimum(b[-1000:], np.nextafter(1.0, 0.0))
+    new, old = np.empty_like(a), np.empty_like(a)
+    both(a, b, new, old)
+    finite = ~np.isnan(old)
+    assert np.array_equal(np.isnan(new), ~finite)
+    assert np.array_equal(new[finite].view(np.uint64), old[finite].view(np.uint64))

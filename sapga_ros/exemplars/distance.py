@@ -46,12 +46,25 @@ def normalize_lanes(S, n, inv_range, is_angle, out):
 
 
 @kernel(inline='always')
+def circular(diff):
+    """The difference ``diff`` of two fractions of a turn in [0, 1), taken the short way
+    round: diff - rint(diff), whose magnitude is min(|diff|, 1 - |diff|) exactly (for
+    |diff| <= 1/2 it is diff; above, diff -+ 1 and 1 - |diff| are both exact by Sterbenz's
+    lemma, |diff| being in [1/2, 1)), so its square is that of the min bit for bit.  rint
+    rounds halves to even: |diff| = 1/2 stays 1/2 either way."""
+    return diff - np.rint(diff)
+
+
+@kernel(inline='always')
 def sq_distances(u, ex, n, is_angle, acc):
     """acc[j] = squared normalised distance from u to exemplar j of ex[:, :n].
 
     The sum runs over the coordinates in order; the first coordinate's square is stored
     rather than added to 0.0 (the same value: squares are +0, positive or NaN), which saves
-    a pass over acc."""
+    a pass over acc.
+
+    An angle's difference the short way round is ``circular``'s, one operation fewer than
+    ``min(|diff|, 1 - |diff|)`` (``sq_distance``) and the same square bit for bit."""
     if u.shape[0] == 0:
         for j in range(n):
             acc[j] = 0.0
@@ -61,13 +74,11 @@ def sq_distances(u, ex, n, is_angle, acc):
         if is_angle[d]:
             if d == 0:
                 for j in range(n):
-                    diff = math.fabs(ud - row[j])
-                    diff = min(diff, 1.0 - diff)  # circular: short way round
+                    diff = circular(ud - row[j])
                     acc[j] = diff * diff
             else:
                 for j in range(n):
-                    diff = math.fabs(ud - row[j])
-                    diff = min(diff, 1.0 - diff)
+                    diff = circular(ud - row[j])
                     acc[j] += diff * diff
         elif d == 0:
             for j in range(n):

@@ -69,10 +69,11 @@ def lockstep_reference(policy, delta: float, n_step: int | None, episodes: int,
     seed = int(overrides.get('disturbance_seed', 0))
     delay = int(overrides.get('delay', 0))
     disturbed = profile != 'none'
-    by = 'sapga eval' + (' --replan' if replan or overrides.get('replan') else '') + (
+    replan = replan or overrides.get('replan') is True
+    by = 'sapga eval' + (' --replan' if replan else '') + (
         f' --disturbance {profile} --seed {seed}' if disturbed else '') + (
         f' --delay {delay}' if delay else '')
-    if replan or overrides.get('replan') is True:
+    if replan:
         return Reference(_planned(policy, delta, n_step, episodes if disturbed else 1,
                                   profile, seed, delay, overrides), by)
     from sapga_ros.evaluation.evaluator import Evaluator
