@@ -90,6 +90,7 @@ def write_recording(path_dir: Path, problem_name: str, episodes: list[dict], *,
                    'time': (step[0] - 1) * 0.05}
             if 'late' in ep:
                 end['late_commands'] = ep['late']
+            end.update(ep.get('end_fields', {}))
             put(writer, 'event', String(data=json.dumps(end)))
     return writer.paths[0]
 
@@ -181,6 +182,30 @@ def test_stamped_commands_count_as_the_answers_to_their_states(capsys, tmp_path)
     for ep in episodes:
         stamps, _ = ep.trajectory()
         assert [t for t, _ in ep.commands] == list(stamps[:-1])   # each its state's stamp
+
+
+def test_the_hold_measures_come_from_the_end_event_when_it_carries_them(capsys, tmp_path):
+    """The simulator's end event carries the hold measures of the true state (the recorded
+    states carry sensor noise, or a robot's own joint convention): inspect reports them;
+    an event without them, or with values the simulator never writes, gets them from the
+    recorded states, without a traceback."""
+    states = acrobot_states(30)
+    told = {'first_entry_step': 7, 'hold_fraction': 0.75, 'rail_contacts': 2}
+    bad = [{'first_entry_step': '7', 'hold_fraction': 0.5, 'rail_contacts': 0},
+           {'first_entry_step': 7, 'hold_fraction': float('nan'), 'rail_contacts': 0},
+           {'first_entry_step': 7, 'hold_fraction': '0.5', 'rail_contacts': 0},
+           {'first_entry_step': True, 'hold_fraction': 0.5, 'rail_contacts': 0},
+           {'first_entry_step': 7, 'hold_fraction': 1.5, 'rail_contacts': 0},
+           {'first_entry_step': 7, 'hold_fraction': 0.5, 'rail_contacts': -1},
+           {'first_entry_step': 7, 'hold_fraction': 0.5}]
+    eps = [{**episode(states, 'step_limit'), 'end_fields': f} for f in [told, {}, *bad]]
+    path = write_recording(tmp_path, 'acrobot', eps)
+    rc, got, err = inspect_json(capsys, path.parent)
+    assert rc == 0 and 'Traceback' not in err
+    measures = [{k: e[k] for k in told} for e in got['episodes']]
+    assert measures[0] == told
+    from_states = measures[1]
+    assert from_states != told and all(m == from_states for m in measures[2:])
 
 
 def test_text_summary_names_topics_and_episodes(capsys, acrobot_file):

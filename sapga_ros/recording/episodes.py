@@ -178,12 +178,31 @@ def episode_summary(ep: Episode, problem: Any, goal_delta: float | None) -> dict
         and not isinstance(ev.get('late_commands'), bool) else None,
         'return_from_rewards': _json_number(ret_rewards),
         'delta_star_from_states': _json_number(delta_states),
-        **_hold(ep, problem, states, gd),
+        **(_event_hold(ev) or _hold(ep, problem, states, gd)),
     }
 
 
+def _event_hold(ev: dict) -> dict[str, Any] | None:
+    """The hold measures the simulator put in the end event (computed on the true state:
+    the recorded states carry any sensor noise, and a robot's own joint convention), or None
+    when the event lacks them or they are not what the simulator writes."""
+    first, fraction, contacts = (ev.get(k) for k in ('first_entry_step', 'hold_fraction',
+                                                     'rail_contacts'))
+
+    def count(x: Any) -> bool:
+        return isinstance(x, int) and not isinstance(x, bool) and x >= 0
+
+    if not (first is None or count(first)) or not count(contacts) or isinstance(
+            fraction, bool) or not isinstance(fraction, (int, float)) or not (
+            0.0 <= fraction <= 1.0):          # NaN fails the comparison
+        return None
+    return {'first_entry_step': first, 'hold_fraction': float(fraction),
+            'rail_contacts': contacts}
+
+
 def _hold(ep: Episode, problem: Any, states: np.ndarray, gd: float | None) -> dict[str, Any]:
-    """The hold measures from the recorded states and rewards (None without a layout)."""
+    """The hold measures from the recorded states and rewards (None without a layout): for
+    recordings whose end events do not carry them."""
     if problem is None or gd is None or not len(states):
         return {'first_entry_step': None, 'hold_fraction': None, 'rail_contacts': None}
     from sim_nodes.goal import trace_hold
