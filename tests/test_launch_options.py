@@ -192,6 +192,12 @@ def test_a_lockstep_reference_honours_or_declines_the_ros_args(small_policy, cap
         assert ref.episodes is None and why in ref.why
     plain = lockstep_reference(policy, 0.3, None, 2, False, ('-p', 'markers:=false'))
     assert plain.by == 'sapga eval' and len(plain.episodes) == 1
+    from sapga_ros.evaluation.replan import ReplanSettings, replanned_episode
+    planned = lockstep_reference(policy, 0.3, None, 2, False, (
+        '-p', 'replan:=true', '-p', 'replan_rounds:=2', '-p', 'replan_fit:=0.05'))
+    assert planned.by == 'sapga eval --replan --replan-fit 0.05 --replan-rounds 2'
+    assert planned.episodes == [replanned_episode(policy, 0.3, settings=ReplanSettings(
+        replan_rounds=2, replan_fit=0.05))]
     end = {'event': 'step_limit', 'episode': 1, 'step': 400, 'return': -1000.0,
            'delta_star': 0.5}
     result = SwingupResult([end, {**end, 'episode': 2}], [],

@@ -72,7 +72,9 @@ def lockstep_reference(policy, delta: float, n_step: int | None, episodes: int,
     replan = replan or overrides.get('replan') is True
     by = 'sapga eval' + (' --replan' if replan else '') + (
         f' --disturbance {profile} --seed {seed}' if disturbed else '') + (
-        f' --delay {delay}' if delay else '')
+        f' --delay {delay}' if delay else '') + ''.join(
+        f' --{name.replace("_", "-")} {overrides[name]}' for name in sorted(PLANNER)
+        if replan and name in overrides)
     if replan:
         return Reference(_planned(policy, delta, n_step, episodes if disturbed else 1,
                                   profile, seed, delay, overrides), by)

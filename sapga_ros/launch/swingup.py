@@ -111,8 +111,9 @@ def build_parser() -> argparse.ArgumentParser:
                                      'an effort array')
     p.add_argument('--replan', action='store_true',
                    help='the policy node re-plans the policy\'s episode at every state '
-                        '(decision-time planning, default settings; compared with sapga '
-                        'eval --replan); problems whose episode ends in S_delta')
+                        '(decision-time planning; its settings through --ros-args -p '
+                        'replan_fit:=X ...; compared with sapga eval --replan); problems '
+                        'whose episode ends in S_delta')
     add_ros_arguments(p)
     return p
 
