@@ -187,7 +187,9 @@ def test_a_lockstep_reference_honours_or_declines_the_ros_args(small_policy, cap
         'delay': 1, 'disturbance': 'field', 'replan_fit': 0.05}
     policy = load_policy(small_policy)
     for extra, why in ((('-p', 'n_step:=50'), '--ros-args set n_step'),
-                       (('--params-file', 'p.yaml'), 'a parameters file')):
+                       (('--params-file', 'p.yaml'), 'a parameters file'),
+                       (('-p', 'disturbance_seed:=abc'), 'do not evaluate offline'),
+                       (('-p', 'disturbance:=gust'), "unknown disturbance 'gust'")):
         ref = lockstep_reference(policy, 0.3, None, 2, False, extra)
         assert ref.episodes is None and why in ref.why
     plain = lockstep_reference(policy, 0.3, None, 2, False, ('-p', 'markers:=false'))

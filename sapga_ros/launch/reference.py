@@ -15,6 +15,7 @@ from typing import Any
 
 import yaml
 
+from sapga_ros.errors import SapgaError
 from sapga_ros.evaluation.replan_settings import ReplanSettings, planner_delay
 from sim_nodes.params import declared
 
@@ -65,6 +66,14 @@ def lockstep_reference(policy, delta: float, n_step: int | None, episodes: int,
     if unknown:
         return Reference(None, why=f'--ros-args set {", ".join(unknown)}, which the offline '
                                    'evaluation does not take')
+    try:
+        return _reference(policy, delta, n_step, episodes, replan, overrides)
+    except (SapgaError, TypeError, ValueError) as exc:   # values the nodes took, not we
+        return Reference(None, why=f'the --ros-args settings do not evaluate offline: {exc}')
+
+
+def _reference(policy, delta: float, n_step: int | None, episodes: int, replan: bool,
+               overrides: dict[str, Any]) -> Reference:
     profile = str(overrides.get('disturbance', 'none'))
     seed = int(overrides.get('disturbance_seed', 0))
     delay = int(overrides.get('delay', 0))
