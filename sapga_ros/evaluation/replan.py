@@ -293,8 +293,7 @@ def planned_episodes(policy, delta: float, disturbance: str | Disturbance, episo
 
 def replanned_episode(policy, delta: float, n_step: int | None = None,
                       settings: ReplanSettings = ReplanSettings(), delay: int = 0) -> dict:
-    """The undisturbed re-planned episode as ``Episode.summary()`` gives an episode (what
-    ``sapga launch swingup --replan`` compares its lockstep episodes with)."""
+    """The undisturbed re-planned episode as ``Episode.summary()`` gives an episode."""
     return episode_summary(planned_episodes(policy, delta, 'none', 1, 0, settings,
                                             planner_delay(policy, delay), n_step)[0])
 

@@ -154,8 +154,8 @@ def run_swingup(args: argparse.Namespace, sup: Supervisor) -> SwingupResult:
     if opts.mode == 'lockstep' and opts.engine == 'kernel':   # MuJoCo is not the kernel
         ref = lockstep_reference(policy, opts.delta, opts.n_step, len(ends), opts.replan,
                                  ros.options.extra)
-        if ref.episodes is None:
-            result.no_reference = ref.why
+        if not ref.episodes:
+            result.no_reference = ref.why or 'no episode ended'
         else:
             result.different = tuple(matches(ends, ref.episodes))
             result.offline = {**ref.episodes[0], 'by': ref.by, 'each': len(ref.episodes) > 1}
