@@ -50,7 +50,7 @@ from sapga_ros.policies.classical import RUN_DELAY
 from sim_nodes.options import add_settings
 from sim_nodes.params import DELTA, build
 from sapga_ros.evaluation.replan_settings import (JOBS as REPLAN_JOBS, ReplanSettings,
-                                                  refuse_stray_settings)
+                                                  refuse_stray_settings, threads)
 
 EXIT_USAGE = 2
 POLICY_DELTA = "goal difficulty (default: the policy's training delta, else the problem's)"
@@ -177,15 +177,13 @@ def _eval_disturbed(args, policy, delta: float) -> int:
 
 
 def _eval_replanned(args, policy) -> int:
-    import os
-
     from sapga_ros.evaluation.replan import replanned
     from sapga_ros.evaluation.replan_settings import planner_delay
     from sapga_ros.policies.kinds import policy_delta
     delta = policy_delta(policy, args.delta)
     settings = build(ReplanSettings, lambda name: getattr(args, name))
     episodes = args.episodes if args.disturbance else 1
-    jobs = args.jobs or os.cpu_count() or 1
+    jobs = threads(args.jobs)
     out = replanned(policy, delta, args.disturbance or 'none', episodes, args.seed, settings,
                     planner_delay(policy, args.delay), args.max_steps, jobs)
     if args.json:

@@ -21,7 +21,8 @@ from pathlib import Path
 from sapga_ros.cli.args import check_output_dir, episode_steps, nonneg_int
 from sapga_ros.errors import SapgaError
 from sapga_ros.evaluation.replan_settings import (JOBS as REPLAN_JOBS, ReplanSettings,
-                                                  check_plannable, refuse_stray_settings)
+                                                  check_plannable, refuse_stray_settings,
+                                                  threads)
 from sapga_ros.policies.classical import RUN_DELAY
 from sim_nodes.options import add_param, add_settings
 from sim_nodes.params import build
@@ -63,8 +64,6 @@ def add_robustness_arguments(r: argparse.ArgumentParser) -> None:
 
 
 def cmd_robustness(args: argparse.Namespace) -> int:
-    import os
-
     from sapga_ros.evaluation.sweep import sweep
     from sapga_ros.io.jsonfile import dumps
     from sapga_ros.io.atomic import write_inside
@@ -85,7 +84,7 @@ def cmd_robustness(args: argparse.Namespace) -> int:
         replan = None
     if len({p.problem.name for p in policies}) > 1:
         raise SapgaError('robustness curves compare policies of one problem')
-    jobs = args.jobs or os.cpu_count() or 1
+    jobs = threads(args.jobs)
     profiles = [load_disturbance(name) for name in args.disturbance or PROFILES]
     results, curves = [], {}
     for profile in profiles:

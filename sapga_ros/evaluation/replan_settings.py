@@ -2,12 +2,18 @@
 apart from its kernels so that the command line offers them without compiling anything."""
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 
 from sapga_ros.errors import SapgaError
 from sim_nodes.params import Param, check, declared, param
 
 JOBS = Param('jobs', 1, 'threads running the re-planned episodes; 0: every core', low=0)
+
+
+def threads(jobs: int) -> int:
+    """The threads ``JOBS`` = ``jobs`` means (0: every core)."""
+    return jobs or os.cpu_count() or 1
 
 
 @dataclass(frozen=True)

@@ -17,6 +17,7 @@ import yaml
 
 from sapga_ros.errors import SapgaError
 from sapga_ros.evaluation.replan_settings import ReplanSettings, planner_delay
+from sapga_ros.launch.stack import event_summary, same_episode
 from sim_nodes.params import declared
 
 # parameters that do not change what an episode computes
@@ -111,6 +112,5 @@ def _planned(policy, delta: float, n_step: int | None, episodes: int, profile: s
 def matches(ends: list[dict], reference: list[dict]) -> list[int]:
     """The launched episodes (1-based) that differ from their reference (an undisturbed
     reference is one episode, which every launched episode must equal)."""
-    from sapga_ros.launch.stack import event_summary, same_episode
     return [k for k, e in enumerate(ends, 1)
             if not same_episode(event_summary(e), reference[min(k, len(reference)) - 1])]
