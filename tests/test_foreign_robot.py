@@ -148,11 +148,13 @@ def test_the_classical_controller_swings_up_the_mujoco_acrobot_through_the_mappi
     assert names == {('shoulder', 'elbow')}
 
 
-def test_sapga_launch_engine_mujoco_records_the_robot_driven_through_the_mapping(tmp_path):
+def test_sapga_launch_engine_mujoco_records_the_robot_driven_through_the_mapping(
+        tmp_path, capsys):
     """`sapga launch swingup --engine mujoco`: the classical acrobot_hold controller swings
     up and holds the MuJoCo acrobot; the bag (read back by rosbags) holds the robot's joint
     states, an effort array answering every state (the last one's steps nothing), and the
-    end event."""
+    end event; `sapga inspect` reads the robot's states and effort arrays as the problem's
+    (the elbow's effort is minus the problem's torque)."""
     pytest.importorskip('mujoco')
     import json
 
@@ -175,3 +177,11 @@ def test_sapga_launch_engine_mujoco_records_the_robot_driven_through_the_mapping
         {float(e[0]) for e in efforts}) > 1
     assert end['event'] == 'step_limit' and end['first_entry_step'] is not None
     assert end['hold_fraction'] >= 0.9
+    capsys.readouterr()
+    assert sapga(['inspect', str(the_bag(tmp_path / 'rec')), '--json']) == 0
+    summary = json.loads(capsys.readouterr().out)
+    ep, = summary['episodes']
+    assert summary['robot_joints'] and end['engine'] == 'mujoco'
+    answers = [-float(e[0]) + 0.0 for e in efforts[:1000]]    # the episode's 1,000 steps
+    assert ep['actions'] == {f'{v:g}': answers.count(v) for v in sorted(set(answers))}
+    assert ep['delta_star_from_states'] <= end['goal_delta']   # held: in S_delta

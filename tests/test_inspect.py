@@ -329,6 +329,123 @@ def test_states_go_to_their_episode_by_sim_time(capsys, tmp_path):
     assert first['delta_star_from_states'] == 0.0     # the late goal state was counted
 
 
+@pytest.mark.parametrize('problem_name', ['acrobot', 'pdip'])
+@pytest.mark.parametrize('engine', ['mujoco', None, 'kernel'])
+def test_a_recording_on_the_mujoco_robot_reads_as_the_problem(capsys, tmp_path, problem_name,
+                                                              engine):
+    """The MuJoCo robot publishes its own joints (its names, zero hanging down, its
+    directions) and takes effort arrays: when the episode events say engine mujoco, or say
+    nothing and the recording holds an effort array, inspect reads its states and commands
+    as the problem's (delta* from states, actions); events saying engine kernel: not."""
+    from std_msgs.msg import Float64MultiArray
+    from sim_nodes.mujoco_plant import mapping
+
+    problem = load_problem(problem_name)
+    joints = mapping(problem)
+    states = (acrobot_states if problem_name == 'acrobot' else pdip_states)(12)
+    torques = [(-2.0, 0.0, 2.0)[k % 3] * problem.actions[-1] / 2.0 for k in range(11)]
+    robot_names = [joints[j].robot_joint for j in problem.joints]
+
+    def robot_state(s: list[float], step: int) -> JointState:
+        msg = JointState()
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(step * 50_000_000,
+                                                                1_000_000_000)
+        pos, vel = [0.0] * len(robot_names), [0.0] * len(robot_names)
+        for c, x in zip(problem.state, s):
+            m = joints[c.joint]
+            k = robot_names.index(m.robot_joint)
+            if c.field == 'position':
+                pos[k] = (x - m.offset) * m.direction
+            else:
+                vel[k] = x * m.direction
+        msg.name, msg.position, msg.velocity = robot_names, pos, vel
+        return msg
+
+    topics = {**TOPICS, 'effort': '/effort_controller/commands'}
+    tag = {} if engine is None else {'engine': engine}
+    t = [0]
+    with BagWriter(tmp_path / 'bag', chunk_size=1024,
+                   custom_data={'problem': problem_name, 'topics': json.dumps(TOPICS)}) as w:
+        w.add_topic(TopicInfo(TOPICS['state'], ROLE_TYPES['state'], [qos_profile()]))
+        w.add_topic(TopicInfo(TOPICS['event'], ROLE_TYPES['event'], [qos_profile()]))
+        w.add_topic(TopicInfo(topics['effort'], 'std_msgs/msg/Float64MultiArray',
+                              [qos_profile()]))
+
+        def put(topic: str, msg: object) -> None:
+            t[0] += 1
+            w.write(topic, serialize_message(msg), t[0], t[0])
+        put(TOPICS['event'], String(data=json.dumps({'event': 'start', 'episode': 1,
+                                                     'time': 0.0, **tag})))
+        for k, s in enumerate(states):
+            put(TOPICS['state'], robot_state(s, k))
+            if k < len(torques):
+                effort = torques[k] * joints[problem.actuator_joint].direction
+                put(topics['effort'], Float64MultiArray(data=[effort]))
+        put(TOPICS['event'], String(data=json.dumps({'event': 'step_limit', 'episode': 1,
+                                                     'step': 11, 'time': 0.55, **tag})))
+    rc, summary, err = inspect_json(capsys, w.path)
+    assert rc == 0 and err == ''
+    got = summary['episodes'][0]
+    roles = {x['topic']: x['role'] for x in summary['topics']}
+    assert roles[topics['effort']] == 'effort'
+    want = min(delta_of(problem, s) for s in states)
+    if engine == 'kernel':                   # read as the problem's own joints: not these
+        assert summary['robot_joints'] is False and got['actions'] == {}
+        assert got['delta_star_from_states'] != pytest.approx(want)
+        return
+    assert summary['robot_joints'] is True
+    assert got['delta_star_from_states'] == pytest.approx(want, abs=1e-12)
+    assert got['actions'] == {f'{v:g}': torques.count(v) for v in sorted(set(torques))}
+    assert got['messages']['commands'] == len(torques)
+    rc = run_inspect(str(w.path))
+    assert rc == 0 and "the MuJoCo robot's joints" in capsys.readouterr().out
+
+
+def test_values_received_after_their_end_event_count_for_their_episode(capsys, tmp_path):
+    """A recorder that falls behind takes a run's few episode events from their queue long
+    before the values queued beside them, so its receive times put an episode's end event
+    before most of its rewards, commands and exemplar indices.  They were published before
+    it (the publishers' clock): each counts for its episode, the answer to an episode's
+    final state for none, and a value published between episodes for none."""
+    problem = load_problem('acrobot')
+    eps = [episode(acrobot_states(12), 'step_limit'), episode(acrobot_states(9), 'goal')]
+    sent = [0]                  # the publishers' clock [ns]
+    log: list[tuple[int, str, object, int]] = []      # (receive time, topic, msg, sent)
+    lag = 10 ** 9               # the values wait a second in the recorder's queues
+    step = 0
+
+    def put(role: str, msg: object, late: bool) -> None:
+        sent[0] += 1_000_000
+        log.append((sent[0] + (lag if late else 1000), TOPICS[role], msg, sent[0]))
+    for number, ep in enumerate(eps):
+        put('event', String(data=json.dumps({'event': 'start', 'episode': number,
+                                             'time': step * 0.05})), False)
+        for k, s in enumerate(ep['states']):
+            put('state', joint_state(problem, s, step), True)
+            step += 1
+            if k < len(ep['commands']):
+                put('reward', Float64(data=ep['rewards'][k]), True)
+            put('command', Float64(data=ep['commands'][k] if k < len(ep['commands'])
+                                   else 7.0), True)        # the 7: answers the final state
+            put('exemplar', Int32(data=k % 5), True)
+        put('event', String(data=json.dumps({'event': ep['end'], 'episode': number,
+                                             'step': len(ep['rewards']),
+                                             'time': (step - 1) * 0.05})), False)
+        put('reward', Float64(data=100.0), True)           # between episodes: none's
+    with new_bag(tmp_path / 'bag', {'problem': 'acrobot', 'topics': json.dumps(TOPICS)}
+                 ) as writer:
+        for received, topic, msg, at in sorted(log, key=lambda x: x[0]):
+            writer.write(topic, serialize_message(msg), received, at)
+    rc, summary, err = inspect_json(capsys, writer.path)
+    assert rc == 0 and err == ''
+    for got, ep in zip(summary['episodes'], eps):
+        assert got['messages'] == {'states': len(ep['states']), 'rewards': len(ep['rewards']),
+                                   'commands': len(ep['commands'])}
+        assert got['return_from_rewards'] == pytest.approx(sum(ep['rewards']))
+        assert got['actions'] == {f'{v:g}': ep['commands'].count(v)
+                                  for v in sorted(set(ep['commands']))}
+
+
 def test_every_truncation_point_gives_a_summary_or_one_line_error(capsys, tmp_path,
                                                                   acrobot_file):
     """Cut anywhere, a recording gives exit 0 with a partial summary or 2 with one line."""

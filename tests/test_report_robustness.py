@@ -69,3 +69,37 @@ def test_report_draws_each_rows_curves_from_its_returned_policies(hold_dir, caps
     assert cli.main(['experiment', 'report', str(out), '--robustness', 'gust']) == 2
     err = capsys.readouterr().err
     assert "unknown disturbance 'gust'" in err and err.count('\n') == 1
+
+
+def test_report_curves_re_planned_are_sapga_eval_replan_of_each_returned_policy(
+        hold_dir, tmp_path, capsys):
+    """``--robustness-replan``: each point is the re-planned sweep of the row's returned
+    policy (the planner predicting for the point's latency), Q-learning and hold rows are
+    left out with their reasons, and a planner setting without the option is refused."""
+    from sapga_ros.cli import main as cli
+    from sapga_ros.evaluation.replan_settings import ReplanSettings
+    from sapga_ros.evaluation.sweep import sweep
+    from sim_nodes.disturbance import load_disturbance
+
+    out = tmp_path / 't2'
+    run_experiments('table2', out, only=[1, 2], seeds=1, scale=0.0002, workers=1,
+                    log=lambda _: None)
+    replan = ReplanSettings(replan_rounds=2, replan_fit=0.05)
+    settings = CurveSettings(('field',), (0.0, 1.0), 2, replan=replan, jobs=2)
+    report = write_report(out, with_figure5=False, curves=settings).read_text()
+    doc = json.loads((out / 'robustness.json').read_text())
+    assert doc['settings']['replan']['replan_fit'] == 0.05 and 'jobs' not in doc['settings']
+    policy = policy_from_document(read_run(run_path(out, 2, 0), 0)[1]['policy'], 'acrobot')
+    want = sweep(policy, 0.02, load_disturbance('field'), (0.0, 1.0), 2, 0, replan, 0, 1)
+    got = [p for p in doc['points'] if p['experiment'] == 2]
+    assert [{k: p[k] for k in w} for p, w in zip(got, want)] == want
+    assert 'Re-planned as they run' in report and '#1 (Q-learning' in report
+
+    report = write_report(hold_dir, with_figure5=False, curves=settings).read_text()
+    assert '#1 (a hold task: not re-planned), #5 (a hold task: not re-planned)' in report
+    capsys.readouterr()
+    for args in (['--robustness', 'field', '--replan-fit', '0.05'],
+                 ['--robustness-replan']):
+        assert cli.main(['experiment', 'report', str(out), *args]) == 2
+        err = capsys.readouterr().err
+        assert err.count('\n') == 1 and 'setting of --r' in err, err

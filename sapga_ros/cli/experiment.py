@@ -3,7 +3,8 @@ and the physical limit of a problem.
 
     sapga experiment NAME --out DIR [--only 2,4] [--seeds N] [--scale F] [--workers W]
                      [--backend local|ray] [--address ADDR] [--robustness NAME[,NAME]
-                     [--robustness-scales F,F] [--robustness-episodes N]]
+                     [--robustness-scales F,F] [--robustness-episodes N]
+                     [--robustness-replan [--replan-fit X ...]]]
     sapga experiment report DIR [--robustness ...]
     sapga limit --problem P [--alternative-goal] [--width W] [--cells C] [--per-cell K]
                 [--seed S] [--json] [--out FILE.json]
@@ -18,7 +19,10 @@ from pathlib import Path
 from sapga_ros.cli.args import episode_steps, nonneg_int, positive_int
 from sapga_ros.cli.robustness import PROFILES, scale_list
 from sapga_ros.errors import SapgaError
+from sapga_ros.evaluation.replan_settings import ReplanSettings, refuse_stray_settings, threads
 from sapga_ros.training.experiment_set import MAX_SCALE, MAX_SEEDS
+from sim_nodes.options import add_settings
+from sim_nodes.params import build
 
 
 MAX_WORKERS = 4096
@@ -76,6 +80,11 @@ def add_experiment_arguments(ex: argparse.ArgumentParser) -> None:
     ex.add_argument('--robustness-episodes', type=episode_steps, default=20, metavar='N',
                     help='with --robustness: held-out episodes per policy and size '
                          '(default 20)')
+    ex.add_argument('--robustness-replan', action='store_true',
+                    help='with --robustness: the curves of the policies\' plans re-planned as '
+                         'they run (as sapga eval --replan, predicting for each size\'s '
+                         'latency; on every core); hold rows are left out')
+    add_settings(ex, ReplanSettings)
 
 
 def cmd_experiment(args) -> int:
@@ -110,6 +119,9 @@ def cmd_experiment(args) -> int:
 def _curves(args):
     """The robustness curves the options ask for (None: none)."""
     from sapga_ros.viz.report_robustness import CurveSettings
+    refuse_stray_settings(args.given, args.robustness_replan)
+    if args.robustness_replan and not args.robustness:
+        raise SapgaError('--robustness-replan is a setting of --robustness')
     if not args.robustness:
         return None
     names = [n.strip() for n in args.robustness.split(',') if n.strip()]
@@ -121,8 +133,10 @@ def _curves(args):
     from sim_nodes.disturbance import load_disturbance
     for name in names:
         load_disturbance(name)            # an unknown name: one line, before any run
+    replan = (build(ReplanSettings, lambda name: getattr(args, name))
+              if args.robustness_replan else None)
     return CurveSettings(tuple(names), tuple(args.robustness_scales),
-                         args.robustness_episodes)
+                         args.robustness_episodes, replan=replan, jobs=threads(0))
 
 
 def add_limit_arguments(li: argparse.ArgumentParser) -> None:

@@ -5,7 +5,14 @@ nothing more can join it, so a reader holds the two or three newest episodes, ne
 recording: a bag of millions of messages is summarised in the memory of its longest episode.
 Messages are taken in receive order (``log_time``, then file order) through a window of
 ``WINDOW`` messages, as a recorder writes them (a file whose messages are further out of order
-than that is cut in the order the window gives).
+than that is cut in the order the window gives).  A recorder that falls behind takes an
+episode's few events from their queue long before the values queued beside them, so receive
+times alone would end an episode before most of its values: states go to their episode by sim
+time (their stamps against the events' ``time``), stamped commands by the state they answer,
+and values without a stamp (rewards, commands, effort arrays, exemplar indices) by their
+publish time against the publish times of the start and end events (``Episode.sent_within``).
+An episode with one command more than its steps drops the last (``Episode.settled``: it
+answered the final state).
 
 What the open episodes keep is bounded in bytes: each state or value costs about what it
 takes (``KEPT_STATE``, ``KEPT_VALUE``); past ``limit`` bytes the cutter takes no more messages
@@ -21,6 +28,7 @@ from sapga_ros.recording.episodes import (EPISODE_ROLES, Episode, event_ns, fini
                                           stamp_ns, stamped_command, state_vector)
 from sapga_ros.recording.events import EPISODE_END_EVENTS, event_episode, parse_event
 from sapga_ros.recording.reader import DecodedMessage
+from sapga_ros.recording.robot import RobotLayout
 
 WINDOW = 4096               # messages reordered by receive time before they are cut
 KEPT_STATE = 400            # [bytes] a kept state: its stamp, vector and dict entry, about
@@ -31,8 +39,10 @@ class Cutter:
     """Episodes of the messages fed to it (see the module doc)."""
 
     def __init__(self, roles: dict[str, str], problem: Any, done: Callable[[Episode], None],
-                 limit: float = float('inf'), window: int = WINDOW) -> None:
+                 limit: float = float('inf'), window: int = WINDOW,
+                 robot: RobotLayout | None = None) -> None:
         self.roles, self.problem, self.done = roles, problem, done
+        self.robot = robot              # the states are a robot's, in its convention
         self.limit, self.window = limit, window
         self.kept = 0                   # [bytes] kept by the open episodes
         self.bad_events = 0
@@ -54,7 +64,7 @@ class Cutter:
             self._take(heapq.heappop(self._heap)[2])
         self._heap.clear()
         for ep in self._open:
-            self.done(ep)
+            self.done(ep.settled())
         self._open.clear()
 
     def _current(self) -> Episode:
@@ -76,7 +86,7 @@ class Cutter:
         while len(self._open) > 2:      # states find their episode among the newest two
             old = self._open.pop(0)
             self.kept -= old.kept
-            self.done(old)
+            self.done(old.settled())
 
     def _take(self, m: DecodedMessage) -> None:
         role = self.roles[m.topic]
@@ -85,7 +95,8 @@ class Cutter:
             return
         if role == 'state':
             stamp = stamp_ns(m.value)
-            s = state_vector(m.value, self.problem) if self.problem is not None else None
+            s = (self.robot.state(m.value) if self.robot is not None else
+                 state_vector(m.value, self.problem) if self.problem is not None else None)
             home = next((ep for ep in reversed(self._open[-2:]) if ep.owns(stamp)), None)
             if home is None and not self._open:
                 home = self._current()
@@ -97,25 +108,37 @@ class Cutter:
                 self._orphans.append((stamp, s))
                 self._keep(self._open[-1], KEPT_STATE, m)
             return
-        ep = self._current()
-        if ep.closed:
-            return              # between episodes: belongs to none
         if role == 'command_stamped':
             stamp, value = stamped_command(m.value, self.problem)
-            if value is not None:
+            ep = self._home(lambda e: e.owns(stamp) and (e.end_ns is None or stamp < e.end_ns))
+            if ep is not None and value is not None:
                 ep.commands.append((stamp, value + 0.0))
                 self._keep(ep, KEPT_VALUE, m)
             return
-        value = finite(m.value.data)
+        ep = self._home(lambda e: e.sent_within(m.publish_time))
+        if ep is None:
+            return              # between episodes, or answering a final state: none's
+        if role == 'effort':        # a robot's effort array, held like ``command``
+            value = self.robot.action(m.value.data) if self.robot is not None else None
+        else:
+            value = finite(m.value.data)
         if value is None:
             return
         if role == 'reward':
             ep.rewards.append(value)
-        elif role == 'command':     # held from the latest state on (zero-order hold)
+        elif role in ('command', 'effort'):     # held from the latest state on
             ep.commands.append((ep.latest, value + 0.0))
         elif role == 'exemplar':
             ep.exemplars.append(int(value))
         self._keep(ep, KEPT_VALUE, m)
+
+    def _home(self, owns: Callable[[Episode], bool]) -> Episode | None:
+        """The episode a value goes to: the newer of the two newest that ``owns`` it, else
+        the newest while it is open (a recording without start events), else none."""
+        home = next((ep for ep in reversed(self._open[-2:]) if owns(ep)), None)
+        if home is None and not self._current().closed:
+            home = self._current()
+        return home
 
     def _event(self, m: DecodedMessage) -> None:
         ev = parse_event(getattr(m.value, 'data', None))
@@ -125,7 +148,7 @@ class Cutter:
         kind = ev.get('event')
         number = event_episode(ev)
         if kind == 'start':
-            ep = Episode(number, start_ns=event_ns(ev))
+            ep = Episode(number, start_ns=event_ns(ev), start_sent=m.publish_time)
             self._start(ep)
             for stamp, s in self._orphans:
                 if ep.owns(stamp):
@@ -135,10 +158,14 @@ class Cutter:
             ep = self._current()
             ep.number = number if ep.number is None else ep.number
             ep.end, ep.end_event, ep.end_ns = kind, ev, event_ns(ev)
+            ep.end_sent = m.publish_time
+            if ep.end_ns is not None:   # an answer to the final state steps nothing in it
+                ep.commands = [c for c in ep.commands if c[0] is None or c[0] < ep.end_ns]
 
 
 def build_episodes(messages: list[DecodedMessage], roles: dict[str, str],
-                   problem: Any) -> tuple[list[Episode], int]:
+                   problem: Any, robot: RobotLayout | None = None
+                   ) -> tuple[list[Episode], int]:
     """Cut the messages into episodes; returns (episodes, malformed events).
 
     Messages are taken in receive order.  States also carry their sim time, and events the
@@ -146,7 +173,7 @@ def build_episodes(messages: list[DecodedMessage], roles: dict[str, str],
     event (or just before the next start event) still goes to the episode it belongs to.
     """
     episodes: list[Episode] = []
-    cutter = Cutter(roles, problem, episodes.append, window=len(messages) + 1)
+    cutter = Cutter(roles, problem, episodes.append, window=len(messages) + 1, robot=robot)
     for m in messages:
         cutter.feed(m)
     cutter.close()

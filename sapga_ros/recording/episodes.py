@@ -7,7 +7,8 @@ States also carry their sim time, and events the sim time of their state, so a s
 arrives just after its episode's end event still goes to its episode.  The state layout
 (which JointState joint and field is which coordinate) comes from the problem.  Commands come
 from ``command_stamped`` (each names the state it answers: its stamp) and from the hand-use
-``command`` (held from the latest state heard); markers belong to no episode's numbers.
+``command`` (held from the latest state heard), or from a robot's effort arrays (``robot.py``);
+markers belong to no episode's numbers.
 """
 from __future__ import annotations
 
@@ -22,6 +23,7 @@ from sapga_ros.errors import DataFileError
 from sapga_ros.io.jsonfile import strict_loads
 from sapga_ros.recording.events import DEFAULT_ROLE_TOPICS, MAX_EVENT_CHARS, ROLE_TYPES
 from sapga_ros.recording.reader import Recording, schema_type
+from sapga_ros.recording.robot import effort_topic
 
 
 @dataclass
@@ -38,6 +40,8 @@ class Episode:
     commands: list[tuple[int | None, float]] = field(default_factory=list)  # (state stamp, u)
     exemplars: list[int] = field(default_factory=list)
     latest: int | None = None       # stamp of the latest state heard so far
+    start_sent: int | None = None   # publish times [ns] of its start and end events
+    end_sent: int | None = None
     kept: int = 0                   # [bytes] what its states and values take, about
 
     @property
@@ -50,6 +54,26 @@ class Episode:
             return False
         return ((self.start_ns is None or stamp >= self.start_ns)
                 and (self.end_ns is None or stamp <= self.end_ns))
+
+    def settled(self) -> Episode:
+        """This episode once nothing more joins it: with one command more than the steps its
+        end event counts (an answer to every state), the last one answered the final state
+        and stepped nothing, so it is not one of the episode's."""
+        steps = (self.end_event or {}).get('step')
+        if isinstance(steps, int) and not isinstance(steps, bool) and len(
+                self.commands) == steps + 1:
+            del self.commands[-1]
+        return self
+
+    def sent_within(self, sent: int) -> bool:
+        """Whether a value without a stamp (reward, command, exemplar index) published at
+        ``sent`` was published between this episode's start and end events (the publishers'
+        clock: a recorder that falls behind receives the values of an episode after its end
+        event, though never before their publishers sent them)."""
+        if self.start_sent is None and self.end_sent is None:
+            return not self.closed
+        return ((self.start_sent is None or sent >= self.start_sent)
+                and (self.end_sent is None or sent <= self.end_sent))
 
     def add_state(self, stamp: int, s: np.ndarray | None) -> None:
         if stamp not in self.states:        # lockstep re-publishes repeat a stamp
@@ -76,14 +100,17 @@ def _json_number(x: float | None) -> float | None:
     return None if x is None or not math.isfinite(x) else float(x)
 
 
-# the roles an episode is made of (markers are for viewers)
-EPISODE_ROLES = ('state', 'command', 'command_stamped', 'reward', 'event', 'exemplar')
+# the roles an episode is made of (markers are for viewers); effort: a robot's effort array
+EPISODE_ROLES = ('state', 'command', 'command_stamped', 'reward', 'event', 'exemplar',
+                 'effort')
 
 
 def topic_roles(rec: Recording, problem: Any) -> dict[str, str]:
-    """topic -> role (state, command, reward, event, exemplar) of the recorded topics."""
+    """topic -> role (state, command, reward, event, exemplar; effort: the one effort-array
+    topic a robot takes, ``robot.effort_topic``) of the recorded topics."""
     types = {name: schema_type(t) for name, t in rec.topics.items()}
-    roles: dict[str, str] = {}
+    effort = effort_topic(types)
+    roles: dict[str, str] = {effort: 'effort'} if effort is not None else {}
     try:
         meta_topics = strict_loads(rec.metadata.get('topics', '{}')[:MAX_EVENT_CHARS], 'topics')
     except (DataFileError, TypeError):
@@ -92,7 +119,7 @@ def topic_roles(rec: Recording, problem: Any) -> dict[str, str]:
         for role, topic in meta_topics.items():
             if role in ROLE_TYPES and types.get(topic) == ROLE_TYPES[role]:
                 roles[topic] = role
-    if roles:
+    if len(roles) > (effort is not None):
         return roles
     names = dict(DEFAULT_ROLE_TOPICS)
     if problem is not None and isinstance(problem.ros.get('topics'), dict):

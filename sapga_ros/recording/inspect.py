@@ -24,9 +24,11 @@ from sapga_ros.recording.chunks import BUDGET_FLOOR, BUDGET_RATIO
 from sapga_ros.recording.cutter import Cutter
 from sapga_ros.recording.episodes import EPISODE_ROLES, Episode, episode_summary, finite, \
     topic_roles
-from sapga_ros.recording.events import ROLE_TYPES
+from sapga_ros.recording.events import ROLE_TYPES, parse_event
 from sapga_ros.recording.reader import (Decoder, RecordedMessage, Recording, Sink,
                                         read_recording, schema_type)
+from sapga_ros.recording.robot import RobotLayout
+from sapga_ros.recording.schemas import cdr_string
 
 Replay = Callable[[Sink], None]      # pushes every message of the recording, in file order
 
@@ -58,6 +60,18 @@ class Scan:
         self.count += 1
         self.start = m.log_time if self.start is None else min(self.start, m.log_time)
         self.end = m.log_time if self.end is None else max(self.end, m.log_time)
+
+
+def _robot(scan: Scan, roles: dict[str, str], problem: Any) -> RobotLayout | None:
+    """The MuJoCo robot's layout when the recording was made on it: its first episode event
+    names engine mujoco, or (a simulator that does not name its engine) it holds a robot's
+    effort array; None otherwise, or for a problem without a MuJoCo robot."""
+    events = [t for t, r in roles.items() if r == 'event' and t in scan.first]
+    ev = parse_event(cdr_string(scan.first[events[0]][1].data)) if events else None
+    engine = ev.get('engine') if ev is not None else None
+    if engine is None:
+        engine = 'mujoco' if 'effort' in roles.values() else 'kernel'
+    return RobotLayout.of(problem) if engine == 'mujoco' else None
 
 
 def _problem_name(rec: Recording, scan: Scan) -> str | None:
@@ -130,7 +144,9 @@ def summarize(rec: Recording, scan: Scan | None = None, replay: Replay | None = 
             picker.offer(ep, summaries[-1])
         if rec.messages:            # held in memory: the caller may want them all
             kept.append(ep)
-    cutter = Cutter(roles, problem, done, limit=BUDGET_FLOOR + BUDGET_RATIO * rec.size)
+    robot = _robot(scan, roles, problem)
+    cutter = Cutter(roles, problem, done, limit=BUDGET_FLOOR + BUDGET_RATIO * rec.size,
+                    robot=robot)
     decode = Decoder(rec.topics, [t for t, r in roles.items() if r in EPISODE_ROLES])
     index = [0]
 
@@ -150,6 +166,7 @@ def summarize(rec: Recording, scan: Scan | None = None, replay: Replay | None = 
         'storage_files': [{'path': f.path, 'bytes': f.size, 'messages': f.message_count,
                            'complete': f.complete, 'error': f.error} for f in rec.files],
         'problem': problem_name, 'problem_error': problem_error,
+        'robot_joints': robot is not None,
         'goal_delta': goal_delta,
         'message_count': scan.count,
         'start_time_ns': scan.start, 'end_time_ns': scan.end,
@@ -195,6 +212,9 @@ def format_summary(s: dict[str, Any]) -> str:
              f'messages:  {s["message_count"]} over {s["duration_s"]:.2f} s']
     if s['problem_error']:
         lines.append(f'note:      {s["problem_error"]}')
+    if s.get('robot_joints'):
+        lines.append('states:    the MuJoCo robot\'s joints, read in the problem\'s convention; '
+                     'commands: its effort arrays')
     lines.append('topics:')
     width = max([len(t['topic']) for t in s['topics']] + [5])
     type_width = max([len(t['type']) for t in s['topics']] + [28])

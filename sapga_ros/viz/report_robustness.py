@@ -7,6 +7,11 @@ with a 95 % bootstrap interval over the seeds (the seeds are the independent run
 episodes of one policy are not).  Written: ``DIR/robustness.json`` (every policy's
 points), ``DIR/robustness_<profile>.png`` and a table per profile in ``report.md``.
 Q-learning rows are left out: a Q-table runs undisturbed only.
+
+With ``replan`` (``ReplanSettings``) the curves are those of the returned policies' plans
+re-planned as they run (``sapga eval --replan``; ``sweep``), the planner predicting for each
+size's own latency; rows of a hold task are left out (a plan's score measures entering
+S_delta, not staying).
 """
 from __future__ import annotations
 
@@ -15,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from sapga_ros.evaluation.replan_settings import ReplanSettings
 from sapga_ros.evaluation.sweep import sweep
 from sapga_ros.io.atomic import write_inside
 from sapga_ros.io.jsonfile import dumps
@@ -32,6 +38,8 @@ class CurveSettings:
     scales: tuple[float, ...]
     episodes: int
     seed: int = 0
+    replan: ReplanSettings | None = None    # re-planned curves with these settings
+    jobs: int = 1                   # threads of the re-planned episodes (the same results)
 
 
 def _label(s: dict) -> str:
@@ -49,11 +57,22 @@ def _row_points(out: Path, s: dict, profiles: list, settings: CurveSettings,
         policy = policy_from_document(doc, s['problem'], f"run {s['id']} seed {seed}")
         for p in profiles:
             rows = sweep(policy, s['delta'], p, settings.scales, settings.episodes,
-                         settings.seed)
+                         settings.seed, settings.replan, 0, settings.jobs)
             rates[p.name].append([r['success_rate'] for r in rows])
             points += [{**r, 'experiment': s['id'], 'run_seed': seed} for r in rows]
     return {k: np.array(v, dtype=float).reshape(len(v), len(settings.scales))
             for k, v in rates.items()}
+
+
+def _left_out(s: dict, settings: CurveSettings) -> str | None:
+    """Why row ``s`` has no curves, or None."""
+    if s['method'] == 'ql':
+        return 'Q-learning: runs undisturbed only'
+    if settings.replan is not None:
+        from sim_nodes.problem import load_problem
+        if not load_problem(s['problem']).ends_in_goal:
+            return 'a hold task: not re-planned'
+    return None
 
 
 def robustness_section(out: Path, summaries: list[dict], settings: CurveSettings) -> list[str]:
@@ -66,8 +85,9 @@ def robustness_section(out: Path, summaries: list[dict], settings: CurveSettings
     points: list[dict] = []
     left_out = []
     for s in summaries:
-        if s['method'] == 'ql':
-            left_out.append(f"#{s['id']}")
+        why = _left_out(s, settings)
+        if why:
+            left_out.append(f"#{s['id']} ({why})")
             continue
         rates = _row_points(out, s, profiles, settings, points)
         for p in profiles:
@@ -80,16 +100,27 @@ def robustness_section(out: Path, summaries: list[dict], settings: CurveSettings
             tables[p.name].append(f'| {_label(s)} | {len(a)} | ' + ' | '.join(
                 f'{a[:, j].mean():.2f}' + (f' [{c[0]:.2f}, {c[1]:.2f}]' if c else '')
                 for j, c in enumerate(cis)) + ' |')
-    write_inside(out, 'robustness.json', dumps({'settings': asdict(settings),
-                                                'points': points}, indent=1))
+    measured = {k: v for k, v in asdict(settings).items() if k != 'jobs'}
+    write_inside(out, 'robustness.json', dumps({'settings': measured, 'points': points},
+                                               indent=1))
+    planned = settings.replan is not None
     paths = curve_figures(curves, out, 'robustness_', 'success rate (mean over seeds)',
-                          f'{settings.episodes} held-out episodes per policy and size')
+                          f'{settings.episodes} held-out episodes per policy and size'
+                          + (', re-planned' if planned else ''))
     lines = [f'Each row\'s returned policies, {settings.episodes} held-out disturbed episodes '
              f'per policy and size (draw seed {settings.seed}); success = entered S_δ (hold '
              'problems: hold fraction ≥ 0.9); mean success rate over the row\'s seeds with a '
              '95 % bootstrap interval over the seeds.', '']
+    if planned:
+        r = settings.replan
+        lines += [f'Re-planned as they run (`sapga eval --replan`): {r.replan_rounds} rounds '
+                  f'of 16 mutants over a window of {r.replan_window} steps every '
+                  f'{r.replan_every} step(s), mutation seed {r.replan_seed}, '
+                  + (f'the model fitted as it runs (prior spread {r.replan_fit:g})'
+                     if r.replan_fit else 'the nominal model')
+                  + '; the planner predicts for each size\'s own latency.', '']
     if left_out:
-        lines += [f'Left out (Q-learning, runs undisturbed only): {", ".join(left_out)}.', '']
+        lines += [f'Left out: {", ".join(left_out)}.', '']
     head = ' | '.join(f'x{x:g}' for x in settings.scales)
     for p, path in zip(profiles, paths):
         lines += [f'**{p.name}**', '', f'| row | seeds | {head} |',

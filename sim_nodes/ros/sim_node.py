@@ -434,6 +434,7 @@ class SimNode(GuardedNode):
                'goal_delta': self.settings.delta,
                'time': self._tick * self._tick_ns / 1e9,   # sim time of the state [s]
                'late_commands': self.commands.late - self._late_before,
+               'engine': 'kernel' if self._robot is None else 'mujoco',
                **hold_measures(*self._hold[:2], self._step, self._hold[2])}
         self._event_pub.publish(String(data=json.dumps(doc, allow_nan=False)))
 
