@@ -444,6 +444,11 @@ def test_values_received_after_their_end_event_count_for_their_episode(capsys, t
         assert got['return_from_rewards'] == pytest.approx(sum(ep['rewards']))
         assert got['actions'] == {f'{v:g}': ep['commands'].count(v)
                                   for v in sorted(set(ep['commands']))}
+    from sapga_ros.recording.inspect import summarize
+    _, episodes, _ = summarize(read_recording(writer.path))
+    for got, ep in zip(episodes, eps):      # each command at the state it answered
+        stamps, _ = got.trajectory()
+        assert got.commands == list(zip(stamps[:-1], ep['commands']))
 
 
 def test_every_truncation_point_gives_a_summary_or_one_line_error(capsys, tmp_path,

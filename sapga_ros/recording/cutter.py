@@ -11,8 +11,8 @@ times alone would end an episode before most of its values: states go to their e
 time (their stamps against the events' ``time``), stamped commands by the state they answer,
 and values without a stamp (rewards, commands, effort arrays, exemplar indices) by their
 publish time against the publish times of the start and end events (``Episode.sent_within``).
-An episode with one command more than its steps drops the last (``Episode.settled``: it
-answered the final state).
+Commands without a stamp go with the states in order when there is one per state
+(``Episode.settled``: the answer to the final state is dropped).
 
 What the open episodes keep is bounded in bytes: each state or value costs about what it
 takes (``KEPT_STATE``, ``KEPT_VALUE``); past ``limit`` bytes the cutter takes no more messages
@@ -127,7 +127,7 @@ class Cutter:
         if role == 'reward':
             ep.rewards.append(value)
         elif role in ('command', 'effort'):     # held from the latest state on
-            ep.commands.append((ep.latest, value + 0.0))
+            ep.held.append((ep.latest, value + 0.0))
         elif role == 'exemplar':
             ep.exemplars.append(int(value))
         self._keep(ep, KEPT_VALUE, m)

@@ -38,6 +38,7 @@ class Episode:
     rewards: list[float] = field(default_factory=list)
     states: dict[int, np.ndarray | None] = field(default_factory=dict)  # stamp [ns] -> state
     commands: list[tuple[int | None, float]] = field(default_factory=list)  # (state stamp, u)
+    held: list[tuple[int | None, float]] = field(default_factory=list)  # unstamped, as heard
     exemplars: list[int] = field(default_factory=list)
     latest: int | None = None       # stamp of the latest state heard so far
     start_sent: int | None = None   # publish times [ns] of its start and end events
@@ -56,13 +57,22 @@ class Episode:
                 and (self.end_ns is None or stamp <= self.end_ns))
 
     def settled(self) -> Episode:
-        """This episode once nothing more joins it: with one command more than the steps its
-        end event counts (an answer to every state), the last one answered the final state
-        and stepped nothing, so it is not one of the episode's."""
-        steps = (self.end_event or {}).get('step')
-        if isinstance(steps, int) and not isinstance(steps, bool) and len(
-                self.commands) == steps + 1:
-            del self.commands[-1]
+        """This episode once nothing more joins it, its commands without a stamp (``held``:
+        ``command``, effort arrays) among ``commands``.  Each was heard after the latest
+        state the reader had then taken (its stamp), but a recorder that falls behind takes
+        its queues unevenly; so when they are one per state (an answer to every state, as in
+        lockstep), the k-th goes with the k-th state, and the answer to the final state,
+        which stepped nothing, is dropped."""
+        stamps = sorted(self.states)
+        if len(stamps) and len(self.held) in (len(stamps) - 1, len(stamps)):
+            held = [(t, v) for t, (_, v) in zip(stamps[:-1], self.held)]
+        else:
+            held = [(t, v) for t, v in self.held
+                    if t is None or self.end_ns is None or t < self.end_ns]
+        if held:
+            self.commands = sorted(self.commands + held,
+                                   key=lambda c: -1 if c[0] is None else c[0])
+        self.held = []
         return self
 
     def sent_within(self, sent: int) -> bool:
