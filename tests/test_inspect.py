@@ -51,11 +51,12 @@ def new_bag(path: Path, metadata: dict | None, chunk_size: int = 1024) -> BagWri
 
 def write_recording(path_dir: Path, problem_name: str, episodes: list[dict], *,
                     chunk_size: int = 1024, metadata: bool = True,
-                    stamped: bool = False) -> Path:
+                    stamped: bool = False, sent: bool = True, stray: bool = False) -> Path:
     """A one-file bag of the given episodes (dicts of states, commands, rewards, end, and
     optionally late: the end event's late_commands); commands on ``command`` or, if
-    ``stamped``, on ``command_stamped`` as the policy node answers; returns its storage file
-    (the bag directory is its parent)."""
+    ``stamped``, on ``command_stamped`` as the policy node answers; publish times 0 (not
+    known) unless ``sent``; with ``stray``, a reward of 100 after each end event (between
+    episodes: none's); returns its storage file (the bag directory is its parent)."""
     problem = load_problem(problem_name)
     meta = {'problem': problem_name, 'delta': '0.02',
             'topics': json.dumps(TOPICS)} if metadata else None
@@ -64,7 +65,7 @@ def write_recording(path_dir: Path, problem_name: str, episodes: list[dict], *,
 
     def put(writer: BagWriter, role: str, msg: object) -> None:
         t[0] += 1_000_000
-        writer.write(TOPICS[role], serialize_message(msg), t[0], t[0])
+        writer.write(TOPICS[role], serialize_message(msg), t[0], t[0] if sent else 0)
 
     with new_bag(path_dir / f'{problem_name}_bag', meta, chunk_size) as writer:
         for number, ep in enumerate(episodes):
@@ -92,6 +93,8 @@ def write_recording(path_dir: Path, problem_name: str, episodes: list[dict], *,
                 end['late_commands'] = ep['late']
             end.update(ep.get('end_fields', {}))
             put(writer, 'event', String(data=json.dumps(end)))
+            if stray:
+                put(writer, 'reward', Float64(data=100.0))
     return writer.paths[0]
 
 
@@ -182,6 +185,18 @@ def test_stamped_commands_count_as_the_answers_to_their_states(capsys, tmp_path)
     for ep in episodes:
         stamps, _ = ep.trajectory()
         assert [t for t, _ in ep.commands] == list(stamps[:-1])   # each its state's stamp
+
+
+def test_publish_times_left_0_by_a_writer_are_receive_times(capsys, tmp_path, acrobot_file):
+    """A writer that leaves publish_time 0 (not known): values go to their episode by receive
+    time, the same summary as with publish times."""
+    path, eps = acrobot_file
+    zero = write_recording(tmp_path, 'acrobot', eps, sent=False, stray=True)
+    _, want, _ = inspect_json(capsys, path.parent)
+    rc, got, err = inspect_json(capsys, zero.parent)
+    assert rc == 0 and got['episodes'] == want['episodes']
+    assert [e['messages']['rewards'] for e in got['episodes']] == [len(e['rewards'])
+                                                                   for e in eps]
 
 
 def test_the_hold_measures_come_from_the_end_event_when_it_carries_them(capsys, tmp_path):

@@ -35,6 +35,12 @@ KEPT_STATE = 400            # [bytes] a kept state: its stamp, vector and dict e
 KEPT_VALUE = 100            # [bytes] a kept reward, command or exemplar index, about
 
 
+def sent_ns(m: DecodedMessage) -> int:
+    """When a message was sent: its publish time, or where a writer left that 0 (unknown),
+    its receive time."""
+    return m.publish_time if m.publish_time > 0 else m.log_time
+
+
 class Cutter:
     """Episodes of the messages fed to it (see the module doc)."""
 
@@ -115,7 +121,7 @@ class Cutter:
                 ep.commands.append((stamp, value + 0.0))
                 self._keep(ep, KEPT_VALUE, m)
             return
-        ep = self._home(lambda e: e.sent_within(m.publish_time))
+        ep = self._home(lambda e: e.sent_within(sent_ns(m)))
         if ep is None:
             return              # between episodes, or answering a final state: none's
         if role == 'effort':        # a robot's effort array, held like ``command``
@@ -148,7 +154,7 @@ class Cutter:
         kind = ev.get('event')
         number = event_episode(ev)
         if kind == 'start':
-            ep = Episode(number, start_ns=event_ns(ev), start_sent=m.publish_time)
+            ep = Episode(number, start_ns=event_ns(ev), start_sent=sent_ns(m))
             self._start(ep)
             for stamp, s in self._orphans:
                 if ep.owns(stamp):
@@ -158,7 +164,7 @@ class Cutter:
             ep = self._current()
             ep.number = number if ep.number is None else ep.number
             ep.end, ep.end_event, ep.end_ns = kind, ev, event_ns(ev)
-            ep.end_sent = m.publish_time
+            ep.end_sent = sent_ns(m)
             if ep.end_ns is not None:   # an answer to the final state steps nothing in it
                 ep.commands = [c for c in ep.commands if c[0] is None or c[0] < ep.end_ns]
 
