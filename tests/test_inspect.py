@@ -187,6 +187,46 @@ def test_stamped_commands_count_as_the_answers_to_their_states(capsys, tmp_path)
         assert [t for t, _ in ep.commands] == list(stamps[:-1])   # each its state's stamp
 
 
+def test_lagging_values_between_episodes_or_short_of_one_per_state(capsys, tmp_path):
+    """A recorder that falls behind: an answer published after an episode's end event (to
+    its final state) and before the next start counts for neither episode; commands short
+    of one per state (one lost) all count, each at the latest state heard before it; an
+    event whose time overflows nanoseconds has none (the summary is still made)."""
+    problem = load_problem('acrobot')
+    states = acrobot_states(8)
+    sent = [0]
+    log: list[tuple[int, str, object, int]] = []
+
+    def put(role: str, msg: object, lag: int) -> None:
+        sent[0] += 1_000_000
+        log.append((sent[0] + lag, TOPICS[role], msg, sent[0]))
+    step = 0
+    for number in range(3):
+        put('event', String(data=json.dumps({'event': 'start', 'episode': number,
+                                             'time': step * 0.05})), 1)
+        for k, s in enumerate(states):
+            put('state', joint_state(problem, s, step), 3_000_000)
+            step += 1
+            if k < 7 and not (number == 1 and k == 3):     # episode 1 loses a command
+                put('command', Float64(data=(-2.0, 0.0, 2.0)[k % 3]), 6_000_000)
+        end = {'event': 'step_limit', 'episode': number, 'step': 7, 'time': (step - 1) * 0.05}
+        put('event', String(data=json.dumps(end)), 1)
+        put('command', Float64(data=7.0), 6_000_000)        # answers the final state
+    with new_bag(tmp_path / 'bag', {'problem': 'acrobot', 'topics': json.dumps(TOPICS)}
+                 ) as writer:
+        for received, topic, msg, at in sorted(log, key=lambda x: x[0]):
+            writer.write(topic, serialize_message(msg), received, at)
+    rc, summary, err = inspect_json(capsys, writer.path)
+    assert rc == 0 and err == ''
+    counts = [e['actions'] for e in summary['episodes']]
+    assert counts[0] == counts[2] == {'-2': 3, '0': 2, '2': 2}
+    assert counts[1] == {'-2': 2, '0': 2, '2': 2}
+    far = write_recording(tmp_path / 'far', 'acrobot', [
+        {**episode(acrobot_states(6), 'step_limit'), 'end_fields': {'time': 1e300}}])
+    rc, summary, err = inspect_json(capsys, far.parent)
+    assert rc == 0 and err == '' and summary['episodes'][0]['messages']['states'] == 6
+
+
 def test_publish_times_left_0_by_a_writer_are_receive_times(capsys, tmp_path, acrobot_file):
     """A writer that leaves publish_time 0 (not known): values go to their episode by receive
     time, the same summary as with publish times."""

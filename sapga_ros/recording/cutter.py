@@ -140,10 +140,12 @@ class Cutter:
 
     def _home(self, owns: Callable[[Episode], bool]) -> Episode | None:
         """The episode a value goes to: the newer of the two newest that ``owns`` it, else
-        the newest while it is open (a recording without start events), else none."""
+        the newest while it is open and began without a start event (a recording begun
+        inside it), else none (a value of no episode, or of one no longer held)."""
         home = next((ep for ep in reversed(self._open[-2:]) if owns(ep)), None)
-        if home is None and not self._current().closed:
-            home = self._current()
+        current = self._current()
+        if home is None and not current.closed and current.start_sent is None:
+            home = current
         return home
 
     def _event(self, m: DecodedMessage) -> None:

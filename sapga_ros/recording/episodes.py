@@ -62,13 +62,13 @@ class Episode:
         state the reader had then taken (its stamp), but a recorder that falls behind takes
         its queues unevenly; so when they are one per state (an answer to every state, as in
         lockstep), the k-th goes with the k-th state, and the answer to the final state,
-        which stepped nothing, is dropped."""
+        which stepped nothing, is dropped.  Otherwise (a command lost, or realtime) each
+        keeps the latest state heard before it, and all count."""
         stamps = sorted(self.states)
         if len(stamps) and len(self.held) in (len(stamps) - 1, len(stamps)):
             held = [(t, v) for t, (_, v) in zip(stamps[:-1], self.held)]
-        else:
-            held = [(t, v) for t, v in self.held
-                    if t is None or self.end_ns is None or t < self.end_ns]
+        else:       # not one per state: each at the latest state heard before it
+            held = self.held
         if held:
             self.commands = sorted(self.commands + held,
                                    key=lambda c: -1 if c[0] is None else c[0])
@@ -159,7 +159,8 @@ def state_vector(msg: Any, problem: Any) -> np.ndarray | None:
 
 def event_ns(ev: dict[str, Any]) -> int | None:
     t = finite(ev.get('time'))
-    return None if t is None else int(round(t * 1e9))
+    t = None if t is None else finite(t * 1e9)      # 1e300 s: no time
+    return None if t is None else int(round(t))
 
 
 def stamp_ns(msg: Any) -> int:
