@@ -22,7 +22,6 @@ from ros_helpers import executable
 from sapga_ros.cli import main as cli
 from sapga_ros.launch import run_launch
 from sapga_ros.launch.supervisor import ChildExited, Supervisor, exit_code
-from sapga_ros.evaluation.classical_design import classical_policy
 from sapga_ros.policies.exemplar import ExemplarPolicy
 from sim_nodes.problem import load_problem
 
@@ -188,7 +187,7 @@ def test_swingup_lockstep_recording_equals_sapga_eval(tmp_path, capsys):
 
 def test_swingup_replan_plays_sapga_eval_replan(tmp_path, capsys):
     """``--replan``: the policy node re-plans, and each lockstep episode in the bag equals
-    ``sapga eval --replan``; a hold task is refused before any node starts."""
+    ``sapga eval --replan``; settings it cannot take are refused before any node starts."""
     problem = load_problem('acrobot')
     rng = np.random.default_rng(12)
     policy = ExemplarPolicy(problem, rng.uniform(problem.low, problem.high, (40, 4)),
@@ -202,12 +201,6 @@ def test_swingup_replan_plays_sapga_eval_replan(tmp_path, capsys):
     plain = sapga_eval_json(tmp_path / 'small.json', capsys)
     assert end['return'] == planned['return']['max'] != plain['return']
     assert end['delta_star'] == planned['delta_star']['max']
-    hold = tmp_path / 'hold.json'
-    hold.write_text(classical_policy(load_problem('acrobot_hold')).to_json())
-    assert run_launch('swingup', ['--policy', str(hold), '--out', str(tmp_path / 'h'),
-                                  '--replan']) == 2
-    said = capsys.readouterr()
-    assert 'is a hold task' in said.out + said.err
     assert run_launch('swingup', ['--policy', str(tmp_path / 'small.json'), '--out',
                                   str(tmp_path / 'h'), '--replan', '--n-step', '800']) == 2
     said = capsys.readouterr()

@@ -2,6 +2,7 @@
 score is the episode it stands for, improving never makes it worse, a planned episode on
 the exact model enters S_delta when its plan said it would (or sooner), and the same
 episodes come out of any thread count."""
+import dataclasses
 import math
 
 import numpy as np
@@ -9,14 +10,16 @@ import pytest
 
 from sapga_ros.errors import SapgaError
 from sapga_ros.evaluation.evaluator import model_id
+from sapga_ros.evaluation.hold_catch import HoldCatch
 from sapga_ros.evaluation.replan import (FAR, PLAN_LANES, RESTART_AFTER, PlanningSelector,
                                          Replanner, first_plan, improve_plan, plan_scores,
                                          planned_episode, planned_episodes)
 from sapga_ros.evaluation.replan_settings import ReplanSettings, planner_delay
 from sapga_ros.optim.operators import random_exemplars
+from sapga_ros.evaluation.classical_design import classical_policy
 from sapga_ros.policies.classical import ahead
 from sim_nodes.disturbance import Disturbance, Plant, load_disturbance
-from sim_nodes.goal import goal_arrays, goal_delta
+from sim_nodes.goal import goal_arrays, goal_delta, hold_measures
 from sim_nodes.models.dispatch import step_lanes
 from sim_nodes.draws import episode_key
 from sim_nodes.errors import ConfigError
@@ -26,29 +29,40 @@ EASY = 0.47        # the acrobot's goal box some random plans enter, some not
 MIXED = {'acrobot': EASY, 'pdip': 0.3}
 
 
-def scores(problem, plans, s, t0, delta):
+BOX = (np.zeros((1, 1)), 0.0)      # plan_scores' goal: S_delta, not an ellipsoid
+
+
+def scores(problem, plans, s, t0, delta, ellipse=BOX):
     lanes, dim = len(plans), problem.dim
     out = np.empty(lanes)
     plan_scores(model_id(problem.model), s, plans, t0, plans.shape[1], problem.params(),
                 np.asarray(problem.action_values, dtype=np.float64), *goal_arrays(problem),
-                problem.is_angle, delta, np.empty((dim, lanes)), np.empty(lanes),
+                problem.is_angle, delta, *ellipse, np.empty((dim, lanes)), np.empty(lanes),
                 np.empty(lanes), np.empty(lanes), out)
     return out
 
 
-def score_alone(problem, plan, s, t0, delta):
-    """What plan_scores computes, one step at a time on one state."""
+def score_alone(problem, plan, s, t0, delta, ellipse=BOX):
+    """What plan_scores computes, one step at a time on one state (the goal S_delta, or
+    with ``ellipse`` = (P, c), x'Px <= c about the best state, angles the short way)."""
     S, a, r = s.copy().reshape(-1, 1), np.empty(1), np.empty(1)
     best, inv_scale, fixed = goal_arrays(problem)
+    P, c = ellipse
     dmin = math.inf
     for t in range(t0, len(plan)):
         a[0] = problem.action_values[plan[t]]
         step_lanes(model_id(problem.model), S, a, problem.params(), 1, r)
-        d = goal_delta(S[:, 0], best, inv_scale, fixed, problem.is_angle)
+        if c > 0:
+            x = S[:, 0] - problem.best_state
+            x[problem.is_angle] = np.remainder(x[problem.is_angle] + math.pi,
+                                               2 * math.pi) - math.pi
+            d = float(x @ P @ x)
+        else:
+            d = goal_delta(S[:, 0], best, inv_scale, fixed, problem.is_angle)
         dmin = min(dmin, d)
-        if d <= delta:
+        if d <= (c if c > 0 else delta):
             return t - t0 + 1
-    return FAR * (1.0 + dmin)
+    return FAR * (1.0 + (dmin / c if c > 0 else dmin))
 
 
 @pytest.mark.parametrize('name', ['acrobot', 'pdip'])
@@ -65,6 +79,12 @@ def test_plan_scores_are_the_episodes_of_the_plans(name, rng):
         assert got[2] == got[3]
     mixed = scores(problem, plans, s, 0, MIXED[name])
     assert (mixed < FAR).any() and (mixed >= FAR).any()
+    # a hold task's goal: the ellipsoid of the LQR it hands over to
+    P = HoldCatch(load_problem(f'{name}_hold'), 0).P0
+    for c in (50.0, 1e3, 1e5):
+        got = scores(problem, plans, s, 0, 0.02, (P, c))
+        want = [score_alone(problem, plans[k], s, 0, 0.02, (P, c)) for k in range(PLAN_LANES)]
+        assert got == pytest.approx(want, rel=1e-12, abs=0)
 
 
 def test_improving_never_worsens_and_reports_the_plan_it_keeps():
@@ -76,7 +96,7 @@ def test_improving_never_worsens_and_reports_the_plan_it_keeps():
     before = score_alone(problem, plan, s, 0, EASY)
     args = (model_id(problem.model), s, plan, 0, n, problem.params(),
             np.asarray(problem.action_values, dtype=np.float64), *goal_arrays(problem),
-            problem.is_angle, EASY)
+            problem.is_angle, EASY, *BOX)
     got = improve_plan(*args, 6, 150, np.uint64(12345))
     assert got < before                              # a plan of zeros is easily bettered
     assert got == score_alone(problem, plan, s, 0, EASY)
@@ -104,7 +124,7 @@ def test_on_the_exact_model_the_planned_episode_enters_when_planned_or_sooner(rn
     planner.reset()
     promised = improve_plan(planner.model, problem.initial_state.astype(np.float64),
                             planner.plan, 0, 150, planner.p, planner.actions, *planner.goal,
-                            problem.is_angle, EASY, 4, 150,
+                            problem.is_angle, EASY, *planner.ellipse, 4, 150,
                             np.uint64(episode_key(planner.key, 0, 0, 0)))
     assert promised < FAR
     assert 0 < ep['first_entry'] <= promised
@@ -149,9 +169,9 @@ def test_a_planner_predicts_for_the_delay_given_else_the_files_own(rng):
 
 
 def test_refusals():
-    with pytest.raises(SapgaError, match='replan: acrobot_hold is a hold task'):
-        Replanner(load_problem('acrobot_hold'), np.zeros(5, dtype=np.int64),
-                  ReplanSettings(), 0.02)
+    held_car = dataclasses.replace(load_problem('mountain_car'), ends_in_goal=False)
+    with pytest.raises(SapgaError, match='hold task without a classical LQR'):
+        Replanner(held_car, np.zeros(5, dtype=np.int64), ReplanSettings(), 0.02)
     for bad in ({'replan_rounds': 0}, {'replan_every': 0}, {'replan_window': 0},
                 {'replan_seed': -1}, {'replan_fit': 1.5}):
         with pytest.raises(ConfigError, match=next(iter(bad))):
@@ -183,3 +203,23 @@ def test_a_state_near_the_start_after_a_while_starts_the_plan_again(rng):
     assert late.memory[0].tolist() != [0.0, 0.0]
     late.act(near)
     assert late.t == 1 and late.memory[0, 0] == 0.0   # the commands in flight forgotten
+
+
+def test_a_hold_tasks_planner_hands_over_to_the_lqr_and_holds():
+    """A hold task (acrobot_hold) re-planned from the classical controller's own episode:
+    undisturbed, the planner aims at the LQR's region and the LQR, once there, holds the
+    pendulum to the end; under field, its episodes are the same for any thread count and
+    carry the hold measures (the return with a bonus for every step held)."""
+    problem = load_problem('acrobot_hold')
+    policy = classical_policy(problem)
+    settings = ReplanSettings(replan_rounds=1, replan_every=10)
+    (ep,) = planned_episodes(policy, 0.02, 'none', 1, 0, settings)
+    assert ep['steps'] == problem.n_step and ep['first_entry'] > 0
+    held = hold_measures(ep['first_entry'], ep['held'], ep['steps'], ep['contacts'])
+    assert held['hold_fraction'] >= 0.9
+    planner = Replanner(problem, first_plan(policy, problem.n_step, 0.02), settings, 0.02)
+    assert planner.ellipse[1] == planner.catch.aim < planner.catch.c
+    fit = ReplanSettings(replan_rounds=1, replan_every=10, replan_fit=0.05)
+    one = planned_episodes(policy, 0.02, 'field', 2, 4, fit, 1, 300, jobs=1)
+    assert one == planned_episodes(policy, 0.02, 'field', 2, 4, fit, 1, 300, jobs=2)
+    assert all(o['steps'] == 300 for o in one)

@@ -9,9 +9,11 @@ import numpy as np
 import pytest
 
 from ros_helpers import isolated_ros, run_lockstep
+from sapga_ros.evaluation.classical_design import classical_policy
 from sapga_ros.evaluation.replan import planned_episodes
 from sapga_ros.evaluation.replan_settings import ReplanSettings
 from sapga_ros.optim.operators import random_exemplars
+from sim_nodes.goal import hold_measures
 from sim_nodes.problem import load_problem
 
 
@@ -44,8 +46,28 @@ def test_a_replanning_policy_node_plays_the_offline_planned_episodes(ros, tmp_pa
     assert set(probe.indices) == {-1}                           # no exemplar chose
 
 
+def test_a_replanning_node_holds_as_the_offline_planner_does(ros, tmp_path):
+    """A hold task over ROS: the policy node re-plans towards the LQR's region and hands over
+    to it, fitting its model, against a `field` simulator; the episode's end event (the
+    hold measures of the true state) is the offline planned episode's."""
+    problem = load_problem('acrobot_hold')
+    policy = classical_policy(problem)
+    settings = ReplanSettings(replan_rounds=1, replan_every=10, replan_fit=0.05)
+    (offline,) = planned_episodes(policy, 0.02, 'field', 1, 9, settings, delay=1)
+    params = {'replan': True, 'delay': 1, 'replan_rounds': 1, 'replan_every': 10,
+              'replan_fit': 0.05}
+    probe, _ = run_lockstep(ros, problem, policy, tmp_path / 'hold.json', 0.02, episodes=1,
+                            policy_params=params, disturbance='field', disturbance_seed=9)
+    end = probe.end_of(1)
+    held = hold_measures(offline['first_entry'], offline['held'], offline['steps'],
+                         offline['contacts'])
+    assert offline['first_entry'] > 0 and end['event'] == 'step_limit'
+    assert (end['step'], end['return'], end['delta_star']) == \
+        (offline['steps'], offline['return'], offline['delta_star'])
+    assert {k: end[k] for k in held} == held
+
+
 @pytest.mark.parametrize('args, words', [
-    (('-p', 'problem:=acrobot_hold', '-p', 'replan:=true'), 'replan: acrobot_hold is a hold task'),
     (('-p', 'replan:=true', '-p', 'replan_rounds:=0'), 'replan_rounds: expected an integer'),
 ])
 def test_a_replanning_node_it_cannot_run_stops_with_one_line(ros, args, words):

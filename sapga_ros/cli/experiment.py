@@ -83,7 +83,7 @@ def add_experiment_arguments(ex: argparse.ArgumentParser) -> None:
     ex.add_argument('--robustness-replan', action='store_true',
                     help='with --robustness: the curves of the policies\' plans re-planned as '
                          'they run (as sapga eval --replan, predicting for each size\'s '
-                         'latency; on every core); hold rows are left out')
+                         'latency; on every core)')
     add_settings(ex, ReplanSettings)
 
 

@@ -83,8 +83,8 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument('--replan', action='store_true',
                    help='re-plan the policy\'s own episode on the nominal model as it runs '
                         '(decision-time planning: the plan acts on the state predicted --delay '
-                        'steps ahead); with --disturbance, its episodes; problems whose '
-                        'episode ends in S_delta')
+                        'steps ahead); with --disturbance, its episodes; on a hold task the '
+                        'planner aims at the classical LQR\'s region and hands over to it')
     add_settings(e, ReplanSettings)
     add_param(e, REPLAN_JOBS)
 

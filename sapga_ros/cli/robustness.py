@@ -58,7 +58,7 @@ def add_robustness_arguments(r: argparse.ArgumentParser) -> None:
               'for; 0: the latency of each point\'s plant')
     r.add_argument('--replan', action='store_true',
                    help='the curves of each policy\'s plan re-planned as it runs (as sapga eval '
-                        '--replan); problems whose episode ends in S_delta')
+                        '--replan; a hold task hands over to the classical LQR)')
     add_settings(r, ReplanSettings)
     add_param(r, REPLAN_JOBS)
 

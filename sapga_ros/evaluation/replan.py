@@ -18,8 +18,14 @@ the masses and lengths fitted to the transitions seen so far in the episode
 
 The mutations are counter-based draws (``sim_nodes.draws.uniform``) keyed by the planner's
 seed and the step, so a planned episode is a pure function of the states seen: the same for
-any thread count.  Problems whose episode ends in S_delta only (the hold task's goal is to
-stay, which this score does not measure).
+any thread count.
+
+A hold task (an episode that does not end in S_delta) is not scored by entering S_delta,
+which is not staying: its planner aims at the region of the classical LQR about the upright
+state and, once the state predicted for its command is inside, hands over to that LQR
+(``sapga_ros.evaluation.hold_catch``; the plan's score is the steps until it enters
+``AIM`` x that region, else 10^4 (1 + its smallest x'Px / c)).  A hold task without a
+classical design is refused.
 """
 from __future__ import annotations
 
@@ -31,6 +37,7 @@ import numpy as np
 from sapga_ros.errors import SapgaError
 from sim_nodes.disturbance import Disturbance, Plant, load_disturbance
 from sapga_ros.evaluation.engine import predict_lanes, remember_lanes
+from sapga_ros.evaluation.hold_catch import REDESIGN, HoldCatch
 from sapga_ros.evaluation.model_fit import ModelFit
 from sim_nodes.draws import HELD_OUT, episode_key, uniform
 from sim_nodes.goal import goal_arrays, goal_delta, lanes_delta
@@ -47,37 +54,63 @@ MAX_PLAN = 100_000     # steps of a plan at most (each re-plan scores the rest o
 
 
 @kernel(nogil=True)
+def lanes_quad(S, lanes, best, is_angle, P, out):
+    """out[k] = x'Px of lane k's state minus ``best`` (angles the short way round)."""
+    dim = S.shape[0]
+    x = np.empty(dim)
+    for k in range(lanes):
+        for i in range(dim):
+            d = S[i, k] - best[i]
+            x[i] = d - 2.0 * math.pi * np.rint(d / (2.0 * math.pi)) if is_angle[i] else d
+        q = 0.0
+        for i in range(dim):
+            row = 0.0
+            for j in range(dim):
+                row += P[i, j] * x[j]
+            q += x[i] * row
+        out[k] = q
+
+
+@kernel(nogil=True)
 def plan_scores(model, s, cand, t0, n, p, actions, best, inv_scale, fixed, is_angle, delta,
-                S, a, r, d, score):
+                P, c, S, a, r, d, score):
     """score[k] of plan cand[k] (action indices) from the state s, its steps t0..n-1 on the
-    model with parameters p, the 16 plans side by side."""
+    model with parameters p, the 16 plans side by side.  With ``c`` > 0 the goal is the
+    ellipsoid x'Px <= c about ``best`` instead of S_delta (a hold task's catch), and a plan
+    that never enters it scores FAR (1 + its smallest x'Px / c)."""
     lanes = cand.shape[0]
     first = np.zeros(lanes, dtype=np.int64)
     dmin = np.full(lanes, np.inf)
     for k in range(lanes):
         S[:, k] = s
     left = lanes
+    goal = c if c > 0.0 else delta
     for t in range(t0, n):
         for k in range(lanes):
             a[k] = actions[cand[k, t]]
         step_lanes(model, S, a, p, lanes, r)
-        lanes_delta(S, lanes, best, inv_scale, fixed, is_angle, d)
+        if c > 0.0:
+            lanes_quad(S, lanes, best, is_angle, P, d)
+        else:
+            lanes_delta(S, lanes, best, inv_scale, fixed, is_angle, d)
         for k in range(lanes):
             if first[k] == 0:
                 dmin[k] = d[k] if d[k] < dmin[k] else dmin[k]
-                if d[k] <= delta:
+                if d[k] <= goal:
                     first[k] = t - t0 + 1
                     left -= 1
         if left == 0:
             break
     for k in range(lanes):
-        score[k] = first[k] if first[k] > 0 else FAR * (1.0 + dmin[k])
+        score[k] = first[k] if first[k] > 0 else FAR * (
+            1.0 + (dmin[k] / c if c > 0.0 else dmin[k]))
 
 
 @kernel(nogil=True)
 def improve_plan(model, s, plan, t0, n, p, actions, best, inv_scale, fixed, is_angle, delta,
-                 rounds, window, key):
-    """Improve plan[t0:n] in place from the state s (see the module docstring); its score."""
+                 P, c, rounds, window, key):
+    """Improve plan[t0:n] in place from the state s (see the module docstring; the goal as
+    ``plan_scores`` takes it); its score."""
     lanes = PLAN_LANES
     dim = s.shape[0]
     cand = np.empty((lanes, n), dtype=np.int64)
@@ -99,7 +132,7 @@ def improve_plan(model, s, plan, t0, n, p, actions, best, inv_scale, fixed, is_a
                 cand[k, j] = int(na * uniform(key, S_PLAN, counter + np.uint64(1)))
                 counter += np.uint64(2)
         plan_scores(model, s, cand, t0, n, p, actions, best, inv_scale, fixed, is_angle,
-                    delta, S, a, r, d, score)
+                    delta, P, c, S, a, r, d, score)
         if rnd == 0:
             current = score[0]
         k_best = 0
@@ -146,6 +179,10 @@ class Replanner:
         self._one = (np.empty((problem.dim, 1)), np.empty(1), np.empty(1))
         self.fit = ModelFit(problem, self.model, settings.replan_fit) \
             if settings.replan_fit > 0 else None
+        # a hold task: the planner aims at the LQR's region and hands over inside it
+        self.catch = None if problem.ends_in_goal else HoldCatch(problem, delay)
+        self.ellipse = ((self.catch.P0, self.catch.aim) if self.catch is not None else
+                        (np.zeros((problem.dim, problem.dim)), 0.0))
         self.reset()
 
     def reset(self) -> None:
@@ -156,6 +193,8 @@ class Replanner:
         if self.fit is not None:
             self.fit.reset()
             self.p = self.fit.params
+        if self.catch is not None:
+            self.catch.reset()
 
     def predict(self, seen: np.ndarray) -> np.ndarray:
         """The state when a command issued now acts: the planner's model (nominal, or fitted)
@@ -185,15 +224,21 @@ class Replanner:
             self.p = self.fit.params
         n = len(self.plan)
         t = min(self.t, n - 1)
-        if self.t % self.settings.replan_every == 0 and self.t < n:
+        replan = self.t % self.settings.replan_every == 0 and self.t < n
+        s = self.predict(seen) if replan or self.catch is not None else None
+        if replan:
             # scored to the plan's end: with a delay its last commands act after the
             # episode's, so an entry planned in its last ``delay`` steps does not happen
-            s = self.predict(seen)
             key = np.uint64(episode_key(self.key, self.t, 0, 0))
             improve_plan(self.model, s, self.plan, t, n, self.p, self.actions, *self.goal,
-                         self.problem.is_angle, self.delta, self.settings.replan_rounds,
-                         self.settings.replan_window, key)
+                         self.problem.is_angle, self.delta, *self.ellipse,
+                         self.settings.replan_rounds, self.settings.replan_window, key)
         value = float(self.actions[self.plan[t]])
+        if self.catch is not None:
+            if self.fit is not None and self.t % REDESIGN == 0:
+                self.catch.design(self.p)
+            caught = self.catch.command(s)
+            value = value if caught is None else caught
         if self.fit is not None:
             # the command the plant applies during this step: the oldest in flight, or
             # without a delay the one issued now
@@ -238,7 +283,7 @@ def planned_episode(planner: Replanner, plant: Plant, key: tuple) -> dict:
     planner.reset()
     S, a, r = np.empty((problem.dim, 1)), np.empty(1), np.empty(1)
     dstar = goal_delta(s, best, inv_scale, fixed, problem.is_angle)
-    ret, first, contacts, steps = 0.0, 0, 0, 0
+    ret, first, held, contacts, steps = 0.0, 0, 0, 0, 0
     fail = not math.isnan(problem.fail_charge)
     for t in range(plant.n_step):
         a[0] = plant.command(planner.act(plant.observe(s)))
@@ -254,13 +299,16 @@ def planned_episode(planner: Replanner, plant: Plant, key: tuple) -> dict:
         hit = r[0] < problem.contact_below
         contacts += hit
         if d <= planner.delta:
-            first = steps
-            break
+            first = first or steps
+            held += 1
+            if problem.ends_in_goal:
+                break
+            ret += problem.hold_bonus
         if hit and fail:
             ret += (plant.n_step - steps) * problem.fail_charge
             break
     return {'return': ret, 'steps': steps, 'delta_star': dstar, 'first_entry': first,
-            'held': 1 if first else 0, 'contacts': contacts}
+            'held': held, 'contacts': contacts}
 
 
 def profile_of(disturbance: str | Disturbance) -> Disturbance:

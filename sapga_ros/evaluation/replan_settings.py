@@ -36,11 +36,13 @@ class ReplanSettings:
 
 def check_plannable(problem, name: str = 'replan') -> None:
     """One line (``SapgaError``, naming the setting ``name``) unless ``problem``'s episode
-    ends in S_delta: a hold task is scored by staying there, which a plan's score does not
-    measure."""
-    if not problem.ends_in_goal:
-        raise SapgaError(f'{name}: {problem.name} is a hold task (re-planning needs an '
-                         'episode that ends in S_delta)')
+    ends in S_delta or it is a hold task with a classical LQR to hand over to
+    (``hold_catch``): staying is what a plan's score does not measure."""
+    from sapga_ros.evaluation.hold_catch import plannable_hold
+    if not problem.ends_in_goal and not plannable_hold(problem):
+        raise SapgaError(f'{name}: {problem.name} is a hold task without a classical LQR to '
+                         'hand over to (re-planning needs one, or an episode that ends in '
+                         'S_delta)')
 
 
 def planner_delay(policy, delay: int) -> int:

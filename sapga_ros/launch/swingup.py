@@ -112,8 +112,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument('--replan', action='store_true',
                    help='the policy node re-plans the policy\'s episode at every state '
                         '(decision-time planning; its settings through --ros-args -p '
-                        'replan_fit:=X ...; compared with sapga eval --replan); problems '
-                        'whose episode ends in S_delta')
+                        'replan_fit:=X ...; compared with sapga eval --replan; a hold task '
+                        'hands over to the classical LQR)')
     add_ros_arguments(p)
     return p
 

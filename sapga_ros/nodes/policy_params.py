@@ -89,7 +89,8 @@ MAPPING_PARAMETERS = (
 REPLAN_PARAMETERS = (
     Param('replan', False, "re-plan the policy's own episode at every state on the model "
           "(nominal, or fitted: replan_fit; the plan acts on the state predicted 'delay' "
-          'steps ahead): problems whose episode ends in S_delta', read_only=True),
+          "steps ahead); a hold task's planner hands over to the classical LQR",
+          read_only=True),
     *(replace(p, read_only=True) for p in declared(ReplanSettings)),
 )
 PARAMETERS = PARAMETERS + MAPPING_PARAMETERS + REPLAN_PARAMETERS

@@ -10,8 +10,8 @@ Q-learning rows are left out: a Q-table runs undisturbed only.
 
 With ``replan`` (``ReplanSettings``) the curves are those of the returned policies' plans
 re-planned as they run (``sapga eval --replan``; ``sweep``), the planner predicting for each
-size's own latency; rows of a hold task are left out (a plan's score measures entering
-S_delta, not staying).
+size's own latency; a hold task's planner hands over to the classical LQR
+(``evaluation.hold_catch``).
 """
 from __future__ import annotations
 
@@ -69,9 +69,11 @@ def _left_out(s: dict, settings: CurveSettings) -> str | None:
     if s['method'] == 'ql':
         return 'Q-learning: runs undisturbed only'
     if settings.replan is not None:
+        from sapga_ros.evaluation.hold_catch import plannable_hold
         from sim_nodes.problem import load_problem
-        if not load_problem(s['problem']).ends_in_goal:
-            return 'a hold task: not re-planned'
+        problem = load_problem(s['problem'])
+        if not problem.ends_in_goal and not plannable_hold(problem):
+            return 'a hold task without a classical LQR: not re-planned'
     return None
 
 
