@@ -52,7 +52,7 @@ from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
 from sapga_ros.errors import PolicyFileError, SapgaError
-from sapga_ros.policies.classical import run_ahead
+from sapga_ros.policies.classical import is_classical, run_ahead
 from sapga_ros.policies.exemplar import ExemplarPolicy
 from sapga_ros.policies.runnable import load_policy, policy_from_json
 from sapga_ros.policies.jsonfile import MAX_POLICY_BYTES
@@ -243,8 +243,12 @@ class PolicyNode(GuardedNode):
         self.active = prepared  # the atomic swap
         meta = prepared.policy.meta
         value = f', value {meta["value"]}' if 'value' in meta else ''
-        text = (f'policy from {prepared.source}: {len(prepared)} exemplars '
-                f'({prepared.policy.style}){value}')
+        what = ('the classical controller (LQR + energy swing-up)'
+                if is_classical(prepared.policy) else
+                f'{len(prepared)} exemplars ({prepared.policy.style})')
+        text = f'policy from {prepared.source}: {what}{value}'
+        if self.replan:
+            text += ', re-planned as it runs'
         self.get_logger().info(text)
         return text
 
