@@ -168,6 +168,18 @@ def test_a_planner_predicts_for_the_delay_given_else_the_files_own(rng):
         assert PlanningSelector(p, ReplanSettings(), given).planner.delay == expected
 
 
+def test_a_hold_catch_is_designed_for_its_own_problem_and_delay():
+    """The nominal design is kept per problem (every setting, not its name) and delay; a
+    delay for which the LQR has no catch region is refused with one line."""
+    problem = load_problem('acrobot_hold')
+    wider = dataclasses.replace(problem, default_delta=problem.default_delta / 4,
+                                goal_scale=tuple(2 * x for x in problem.goal_scale))
+    assert HoldCatch(problem, 0).c != HoldCatch(wider, 0).c
+    assert HoldCatch(wider, 0).c == HoldCatch(wider, 0).c
+    with pytest.raises(SapgaError, match='no catch region for a delay of 100 steps'):
+        HoldCatch(problem, 100)
+
+
 def test_refusals():
     held_car = dataclasses.replace(load_problem('mountain_car'), ends_in_goal=False)
     with pytest.raises(SapgaError, match='hold task without a classical LQR'):

@@ -41,8 +41,7 @@ def plannable_hold(problem: Problem) -> bool:
 def _nominal(problem: Problem, delay: int) -> tuple[np.ndarray, np.ndarray, float]:
     """(K, P, c) of the classical design of ``problem`` for ``delay`` (its catch region
     measured once per problem and delay: some 0.1 s)."""
-    key = (problem.name, problem.model, tuple(sorted(problem.physics.items())), problem.dt,
-           problem.substeps, problem.best, problem.actions, delay)
+    key = (repr(dataclasses.replace(problem, ros={}, source='')), delay)   # every setting
     with _LOCK:
         found = _NOMINAL.get(key)
     if found is None:
@@ -63,6 +62,9 @@ class HoldCatch:
                              f'design to hand over to (model {problem.model})')
         self.problem = problem
         self.K0, self.P0, c = _nominal(problem, delay)
+        if not c > 0.0:
+            raise SapgaError(f'replan: the classical LQR of {problem.name} has no catch region '
+                             f'for a delay of {delay} steps (nothing to hand over to)')
         self.c = SHARE * c
         self.aim = AIM * self.c
         self.best = np.asarray(problem.best_state, dtype=np.float64)
