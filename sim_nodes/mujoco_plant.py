@@ -61,6 +61,17 @@ class JointMap:
     direction: float
 
 
+def coordinates(problem: Problem) -> list[tuple[str, float, float, bool, bool]]:
+    """Per coordinate of the problem's state: (robot joint, offset (0 for a velocity),
+    direction, angle, velocity), so that coordinate = offset + direction * the joint's
+    position or velocity (an angle wrapped to [0, 2pi))."""
+    joints = mapping(problem)
+    return [(joints[c.joint].robot_joint,
+             joints[c.joint].offset if c.field == 'position' else 0.0,
+             joints[c.joint].direction, c.angle, c.field == 'velocity')
+            for c in problem.state]
+
+
 def _single(problem: Problem) -> bool:
     return problem.model == 'pdip' and problem.physics['l1'] == problem.physics['l2']
 
@@ -138,11 +149,8 @@ class MujocoPlant:
                                      for k in range(m.nu))
         index = {name: k for k, name in enumerate(self.joint_names)}
         # per problem coordinate: (robot joint index, offset, direction, angle, velocity)
-        self._coords = []
-        for c in problem.state:
-            jm = self.map[c.joint]
-            self._coords.append((index[jm.robot_joint], jm.offset if c.field == 'position'
-                                 else 0.0, jm.direction, c.angle, c.field == 'velocity'))
+        self._coords = [(index[joint], off, sign, angle, vel)
+                        for joint, off, sign, angle, vel in coordinates(problem)]
         self._reward_of = model_module(problem.model).mdp_step
         self._limit = problem.physics.get('x_max', math.inf)
         self.substeps = problem.substeps

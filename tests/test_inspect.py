@@ -98,6 +98,15 @@ def write_recording(path_dir: Path, problem_name: str, episodes: list[dict], *,
     return writer.paths[0]
 
 
+def write_received(path: Path, log: list[tuple[int, str, object, int]]) -> Path:
+    """An acrobot bag of ``log`` (receive time, topic, message, publish time), written in
+    receive order as a recorder writes it; its storage file."""
+    with new_bag(path, {'problem': 'acrobot', 'topics': json.dumps(TOPICS)}) as writer:
+        for received, topic, msg, sent in sorted(log, key=lambda x: x[0]):
+            writer.write(topic, serialize_message(msg), received, sent)
+    return writer.path
+
+
 def joint_state(problem, s: list[float], step: int) -> JointState:
     """The JointState of state s, laid out per the problem's state table."""
     msg = JointState()
@@ -212,11 +221,7 @@ def test_lagging_values_between_episodes_or_short_of_one_per_state(capsys, tmp_p
         end = {'event': 'step_limit', 'episode': number, 'step': 7, 'time': (step - 1) * 0.05}
         put('event', String(data=json.dumps(end)), 1)
         put('command', Float64(data=7.0), 6_000_000)        # answers the final state
-    with new_bag(tmp_path / 'bag', {'problem': 'acrobot', 'topics': json.dumps(TOPICS)}
-                 ) as writer:
-        for received, topic, msg, at in sorted(log, key=lambda x: x[0]):
-            writer.write(topic, serialize_message(msg), received, at)
-    rc, summary, err = inspect_json(capsys, writer.path)
+    rc, summary, err = inspect_json(capsys, write_received(tmp_path / 'bag', log))
     assert rc == 0 and err == ''
     counts = [e['actions'] for e in summary['episodes']]
     assert counts[0] == counts[2] == {'-2': 3, '0': 2, '2': 2}
@@ -487,11 +492,8 @@ def test_values_received_after_their_end_event_count_for_their_episode(capsys, t
                                              'step': len(ep['rewards']),
                                              'time': (step - 1) * 0.05})), False)
         put('reward', Float64(data=100.0), True)           # between episodes: none's
-    with new_bag(tmp_path / 'bag', {'problem': 'acrobot', 'topics': json.dumps(TOPICS)}
-                 ) as writer:
-        for received, topic, msg, at in sorted(log, key=lambda x: x[0]):
-            writer.write(topic, serialize_message(msg), received, at)
-    rc, summary, err = inspect_json(capsys, writer.path)
+    bag = write_received(tmp_path / 'bag', log)
+    rc, summary, err = inspect_json(capsys, bag)
     assert rc == 0 and err == ''
     for got, ep in zip(summary['episodes'], eps):
         assert got['messages'] == {'states': len(ep['states']), 'rewards': len(ep['rewards']),
@@ -500,7 +502,7 @@ def test_values_received_after_their_end_event_count_for_their_episode(capsys, t
         assert got['actions'] == {f'{v:g}': ep['commands'].count(v)
                                   for v in sorted(set(ep['commands']))}
     from sapga_ros.recording.inspect import summarize
-    _, episodes, _ = summarize(read_recording(writer.path))
+    _, episodes, _ = summarize(read_recording(bag))
     for got, ep in zip(episodes, eps):      # each command at the state it answered
         stamps, _ = got.trajectory()
         assert got.commands == list(zip(stamps[:-1], ep['commands']))

@@ -21,6 +21,7 @@ import threading
 import numpy as np
 
 from sapga_ros.errors import SapgaError
+from sapga_ros.evaluation.control import nearest_action
 from sim_nodes.models import model_module
 from sim_nodes.problem import Problem
 
@@ -101,5 +102,4 @@ class HoldCatch:
         x = self.offset(s)
         if not float(x @ self.P @ x) <= self.c:     # NaN: not inside
             return None
-        u = -float(self.K @ x)
-        return float(self.actions[int(np.argmin(np.abs(self.actions - u)))])
+        return float(nearest_action(-float(self.K @ x), self.actions))

@@ -34,12 +34,16 @@ class ReplanSettings:
         check(self)
 
 
-def check_plannable(problem, name: str = 'replan') -> None:
-    """One line (``SapgaError``, naming the setting ``name``) unless ``problem``'s episode
-    ends in S_delta or it is a hold task with a classical LQR to hand over to
-    (``hold_catch``): staying is what a plan's score does not measure."""
+def plannable(problem) -> bool:
+    """Whether ``problem``'s episode ends in S_delta or it is a hold task with a classical
+    LQR to hand over to (``hold_catch``): staying is what a plan's score does not measure."""
     from sapga_ros.evaluation.hold_catch import plannable_hold
-    if not problem.ends_in_goal and not plannable_hold(problem):
+    return problem.ends_in_goal or plannable_hold(problem)
+
+
+def check_plannable(problem, name: str = 'replan') -> None:
+    """One line (``SapgaError``, naming the setting ``name``) unless ``plannable``."""
+    if not plannable(problem):
         raise SapgaError(f'{name}: {problem.name} is a hold task without a classical LQR to '
                          'hand over to (re-planning needs one, or an episode that ends in '
                          'S_delta)')

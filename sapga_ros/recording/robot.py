@@ -20,7 +20,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from sim_nodes.errors import ConfigError
-from sim_nodes.mujoco_plant import mapping
+from sim_nodes.mujoco_plant import coordinates, mapping
 from sim_nodes.problem import Problem
 
 EFFORT_TYPE = 'std_msgs/msg/Float64MultiArray'
@@ -43,7 +43,7 @@ class RobotLayout:
     offsets: np.ndarray             # per coordinate (velocities: 0)
     directions: np.ndarray
     velocity: tuple[bool, ...]      # per coordinate: read from the velocities
-    angle: np.ndarray               # per coordinate: wrapped to [0, 2pi)
+    angle: np.ndarray               # per coordinate: wrapped to [0, 2pi) (bool)
     actuator_direction: float
 
     @classmethod
@@ -51,15 +51,12 @@ class RobotLayout:
         if problem is None:
             return None
         try:
-            joints = mapping(problem)
+            joints, offsets, directions, angle, velocity = zip(*coordinates(problem))
         except ConfigError:
             return None
-        rows = [joints[c.joint] for c in problem.state]
-        vel = tuple(c.field == 'velocity' for c in problem.state)
-        return cls(tuple(r.robot_joint for r in rows),
-                   np.array([0.0 if v else r.offset for r, v in zip(rows, vel)]),
-                   np.array([r.direction for r in rows]), vel, problem.is_angle,
-                   joints[problem.actuator_joint].direction)
+        return cls(joints, np.array(offsets), np.array(directions), velocity,
+                   np.array(angle, dtype=np.bool_),
+                   mapping(problem)[problem.actuator_joint].direction)
 
     def state(self, msg: Any) -> np.ndarray | None:
         """The problem state of a robot ``JointState``; None when it does not fit."""

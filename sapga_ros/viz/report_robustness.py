@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sapga_ros.evaluation.replan_settings import ReplanSettings
+from sapga_ros.evaluation.replan_settings import ReplanSettings, plannable
 from sapga_ros.evaluation.sweep import sweep
 from sapga_ros.io.atomic import write_inside
 from sapga_ros.io.jsonfile import dumps
@@ -69,10 +69,8 @@ def _left_out(s: dict, settings: CurveSettings) -> str | None:
     if s['method'] == 'ql':
         return 'Q-learning: runs undisturbed only'
     if settings.replan is not None:
-        from sapga_ros.evaluation.hold_catch import plannable_hold
         from sim_nodes.problem import load_problem
-        problem = load_problem(s['problem'])
-        if not problem.ends_in_goal and not plannable_hold(problem):
+        if not plannable(load_problem(s['problem'])):
             return 'a hold task without a classical LQR: not re-planned'
     return None
 
