@@ -71,20 +71,24 @@ def test_eval_replan(trained):
     assert got['success_rate'] == 1.0 and got['disturbance'] == 'none'
     assert got['episodes'] == 1 and got['delay'] == 0
     assert got['return']['max'] >= meta['value']
-    assert got['replan'] == {'rounds': 3, 'window': 150, 'every': 1, 'seed': 0, 'fit': 0.0}
+    assert got['replan'] == {'rounds': 3, 'window': 150, 'every': 1, 'seed': 0, 'fit': 0.0,
+                             'filter': 0.0}
     runs = [sapga_in_process(['eval', out, '--replan', '--disturbance', 'field', '--episodes',
                               '3', '--delay', '1', '--replan-rounds', '2', '--replan-every',
-                              '4', '--replan-fit', '0.05', '--json', '--jobs', jobs])
+                              '4', '--replan-fit', '0.05', '--replan-filter', '0.002',
+                              '--json', '--jobs', jobs])
             for jobs in (1, 2)]
     assert all(r.returncode == 0 for r in runs), runs[0].stderr
     assert runs[0].stdout == runs[1].stdout
     disturbed = json.loads(runs[0].stdout)
     assert (disturbed['disturbance'], disturbed['episodes'], disturbed['delay'],
-            disturbed['replan']['fit']) == ('field', 3, 1, 0.05)
+            disturbed['replan']['fit'], disturbed['replan']['filter']) == \
+        ('field', 3, 1, 0.05, 0.002)
     for args, text in ((['--replan-rounds', '3'], '--replan-rounds is a setting of --replan'),
                        (['--jobs', '2'], '--jobs is a setting of --replan'),
                        (['--replan', '--replan-every', '0'], 'replan_every: expected'),
-                       (['--replan', '--replan-fit', '2'], 'replan_fit: expected')):
+                       (['--replan', '--replan-fit', '2'], 'replan_fit: expected'),
+                       (['--replan', '--replan-filter', 'nan'], 'replan_filter: expected')):
         r = sapga_in_process(['eval', out, *args])
         assert r.returncode == 2 and text in r.stderr, r.stderr
         assert 'Traceback' not in r.stderr

@@ -84,7 +84,7 @@ def test_report_curves_re_planned_are_sapga_eval_replan_of_each_returned_policy(
     out = tmp_path / 't2'
     run_experiments('table2', out, only=[1, 2], seeds=1, scale=0.0002, workers=1,
                     log=lambda _: None)
-    replan = ReplanSettings(replan_rounds=2, replan_fit=0.05)
+    replan = ReplanSettings(replan_rounds=2, replan_fit=0.05, replan_filter=0.002)
     settings = CurveSettings(('field',), (0.0, 1.0), 2, replan=replan, jobs=2)
     report = write_report(out, with_figure5=False, curves=settings).read_text()
     doc = json.loads((out / 'robustness.json').read_text())
@@ -94,6 +94,8 @@ def test_report_curves_re_planned_are_sapga_eval_replan_of_each_returned_policy(
     got = [p for p in doc['points'] if p['experiment'] == 2]
     assert [{k: p[k] for k in w} for p, w in zip(got, want)] == want
     assert 'Re-planned as they run' in report and '#1 (Q-learning' in report
+    assert 'Kalman-filtered state (sensor sigma 0.002)' in report
+    assert doc['settings']['replan']['replan_filter'] == 0.002
 
     capsys.readouterr()
     for args in (['--robustness', 'field', '--replan-fit', '0.05'],

@@ -14,7 +14,10 @@ when it is no worse than the plan.  A plan's score: the steps until it enters S_
 plan's action for this step.  Re-planning from what it sees every few steps is the
 feedback.  With ``replan_fit`` the model it plans and predicts on is not the nominal one but
 the masses and lengths fitted to the transitions seen so far in the episode
-(``sapga_ros.evaluation.model_fit``); the sensor noise is what it cannot plan for.
+(``sapga_ros.evaluation.model_fit``).  With ``replan_filter`` (the sensors' noise sigma) it
+plans, predicts and hands over from a Kalman filter's estimate of the state instead of the
+state seen (``sapga_ros.evaluation.state_filter``); the fit still learns from the states
+seen.
 
 The mutations are counter-based draws (``sim_nodes.draws.uniform``) keyed by the planner's
 seed and the step, so a planned episode is a pure function of the states seen: the same for
@@ -22,9 +25,9 @@ any thread count.
 
 A hold task (an episode that does not end in S_delta) is not scored by entering S_delta,
 which is not staying: its planner aims at the region of the classical LQR about the upright
-state and, once the state predicted for its command is inside, hands over to that LQR
-(``sapga_ros.evaluation.hold_catch``; the plan's score is the steps until it enters
-``AIM`` x that region, else 10^4 (1 + its smallest x'Px / c)).  A hold task without a
+state and hands over to that LQR where the model says it settles from the state predicted
+for its command (``sapga_ros.evaluation.hold_catch``; the plan's score is the steps until it
+enters ``AIM`` x that region, else 10^4 (1 + its smallest x'Px / c)).  A hold task without a
 classical design is refused.
 """
 from __future__ import annotations
@@ -39,6 +42,7 @@ from sim_nodes.disturbance import Disturbance, Plant, load_disturbance
 from sapga_ros.evaluation.engine import predict_lanes, remember_lanes
 from sapga_ros.evaluation.hold_catch import REDESIGN, HoldCatch
 from sapga_ros.evaluation.model_fit import ModelFit
+from sapga_ros.evaluation.state_filter import StateFilter
 from sim_nodes.draws import HELD_OUT, episode_key, uniform
 from sim_nodes.goal import goal_arrays, goal_delta, lanes_delta
 from sim_nodes.jit import kernel
@@ -179,8 +183,10 @@ class Replanner:
         self._one = (np.empty((problem.dim, 1)), np.empty(1), np.empty(1))
         self.fit = ModelFit(problem, self.model, settings.replan_fit) \
             if settings.replan_fit > 0 else None
-        # a hold task: the planner aims at the LQR's region and hands over inside it
+        # a hold task: the planner aims at the LQR's region and hands over where it settles
         self.catch = None if problem.ends_in_goal else HoldCatch(problem, delay)
+        self.filter = StateFilter(problem, self.model, settings.replan_filter) \
+            if settings.replan_filter > 0 else None
         self.ellipse = ((self.catch.P0, self.catch.aim) if self.catch is not None else
                         (np.zeros((problem.dim, problem.dim)), 0.0))
         self.reset()
@@ -190,11 +196,14 @@ class Replanner:
         self.t = 0
         self.memory = np.zeros((1, self.delay))   # commands in flight (oldest first)
         self.last = None                          # (state seen, command applied) of t - 1
+        self.applied = 0.0                        # the command applied during step t - 1
         if self.fit is not None:
             self.fit.reset()
             self.p = self.fit.params
         if self.catch is not None:
             self.catch.reset()
+        if self.filter is not None:
+            self.filter.reset()
 
     def predict(self, seen: np.ndarray) -> np.ndarray:
         """The state when a command issued now acts: the planner's model (nominal, or fitted)
@@ -225,7 +234,11 @@ class Replanner:
         n = len(self.plan)
         t = min(self.t, n - 1)
         replan = self.t % self.settings.replan_every == 0 and self.t < n
-        s = self.predict(seen) if replan or self.catch is not None else None
+        # what the plan and the catch start from: the state seen, or the filter's estimate
+        # (the model fit learns from the states seen)
+        estimate = seen if self.filter is None else \
+            self.filter.update(seen, self.applied, self.p)
+        s = self.predict(estimate) if replan or self.catch is not None else None
         if replan:
             # scored to the plan's end: with a delay its last commands act after the
             # episode's, so an entry planned in its last ``delay`` steps does not happen
@@ -237,12 +250,13 @@ class Replanner:
         if self.catch is not None:
             if self.fit is not None and self.t % REDESIGN == 0:
                 self.catch.design(self.p)
-            caught = self.catch.command(s)
+            caught = self.catch.command(s, self.p)
             value = value if caught is None else caught
+        # the command the plant applies during this step: the oldest in flight, or without a
+        # delay the one issued now
+        self.applied = float(self.memory[0, 0]) if self.delay else value
         if self.fit is not None:
-            # the command the plant applies during this step: the oldest in flight, or
-            # without a delay the one issued now
-            self.last = (seen.copy(), float(self.memory[0, 0]) if self.delay else value)
+            self.last = (seen.copy(), self.applied)
         if self.delay:
             remember_lanes(self.memory, self.delay, np.full(1, value))
         self.t += 1
@@ -373,4 +387,4 @@ def replanned(policy, delta: float, disturbance: str | Disturbance, episodes: in
                       [o['delta_star'] for o in out], [o['return'] for o in out]),
             'replan': {'rounds': settings.replan_rounds, 'window': settings.replan_window,
                        'every': settings.replan_every, 'seed': settings.replan_seed,
-                       'fit': settings.replan_fit}}
+                       'fit': settings.replan_fit, 'filter': settings.replan_filter}}

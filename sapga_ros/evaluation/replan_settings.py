@@ -29,6 +29,9 @@ class ReplanSettings:
     replan_fit: float = param(0.0, 'relative prior spread of the masses and lengths the '
                               'planner fits to the transitions it sees; 0: the nominal model',
                               low=0.0, high=1.0)
+    replan_filter: float = param(0.0, 'sensor noise sigma the planner\'s Kalman filter '
+                                 'assumes: it acts on the filtered state; 0: on the state '
+                                 'seen', low=0.0, high=1.0)
 
     def __post_init__(self) -> None:
         check(self)

@@ -118,6 +118,8 @@ def robustness_section(out: Path, summaries: list[dict], settings: CurveSettings
                   f'{r.replan_every} step(s), mutation seed {r.replan_seed}, '
                   + (f'the model fitted as it runs (prior spread {r.replan_fit:g})'
                      if r.replan_fit else 'the nominal model')
+                  + (f', acting on the Kalman-filtered state (sensor sigma {r.replan_filter:g})'
+                     if r.replan_filter else '')
                   + '; the planner predicts for each size\'s own latency.', '']
     if left_out:
         lines += [f'Left out: {", ".join(left_out)}.', '']
