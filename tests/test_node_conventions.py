@@ -160,7 +160,7 @@ def test_numeric_parameters_declare_their_ranges_over_describe_parameters(ros, t
             if p.choices:
                 assert d.additional_constraints == f'one of: {", ".join(p.choices)}'
     numeric = [p for table in tables.values() for p in table if p.type in (int, float)]
-    assert len(numeric) == 21 and all(p.low is not None for p in numeric)
+    assert len(numeric) == 22 and all(p.low is not None for p in numeric)
 
 
 def test_a_value_outside_the_declared_range_is_refused_on_set(ros):
