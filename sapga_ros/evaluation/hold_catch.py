@@ -27,6 +27,7 @@ import numpy as np
 
 from sapga_ros.errors import SapgaError
 from sapga_ros.evaluation.control import nearest_action
+from sapga_ros.policies.lqr import difference
 from sim_nodes.jit import kernel
 from sim_nodes.models import model_module
 from sim_nodes.models.dispatch import step_lanes
@@ -134,10 +135,7 @@ class HoldCatch:
 
     def offset(self, s: np.ndarray) -> np.ndarray:
         """s minus the upright state, angles the short way round."""
-        x = np.asarray(s, dtype=np.float64) - self.best
-        angle = self.problem.is_angle
-        x[angle] = np.remainder(x[angle] + math.pi, 2 * math.pi) - math.pi
-        return x
+        return difference(self.problem, np.asarray(s, dtype=np.float64), self.best)
 
     def command(self, s: np.ndarray, p: np.ndarray) -> float | None:
         """The quantised LQR's action for the (predicted) state s where it settles on the

@@ -23,6 +23,7 @@ import math
 import numpy as np
 
 from sapga_ros.errors import SapgaError
+from sapga_ros.policies.lqr import difference, linearise
 from sim_nodes.models.dispatch import step_lanes
 
 PROCESS = 5e-4     # process noise per step and coordinate (the model's error)
@@ -32,7 +33,6 @@ def filter_gain(problem, sigma: float) -> np.ndarray:
     """The steady-state Kalman gain L (D, D) of ``problem``'s model linearised about its
     best state, measured with noise ``sigma`` on every coordinate."""
     from scipy.linalg import solve_discrete_are
-    from sapga_ros.policies.lqr import linearise
     A, _ = linearise(problem)
     dim = problem.dim
     R = sigma ** 2 * np.eye(dim)
@@ -74,9 +74,7 @@ class StateFilter:
         a[0] = applied
         step_lanes(self.model, S, a, p, 1, r)
         prior = S[:, 0]
-        d = seen - prior
-        d[self.angle] = np.remainder(d[self.angle] + math.pi, 2 * math.pi) - math.pi
-        x = prior + self.L @ d
+        x = prior + self.L @ difference(self.problem, seen, prior)
         x[self.angle] = np.remainder(x[self.angle], 2 * math.pi)
         self.estimate = x
         return x.copy()

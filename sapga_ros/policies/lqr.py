@@ -41,7 +41,8 @@ class Regulator:
     half_width: np.ndarray  # (D,) goal box half-widths at delta = 1
 
 
-def _difference(problem: Problem, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def difference(problem: Problem, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a - b, angles the short way round (to [-pi, pi))."""
     d = a - b
     angle = problem.is_angle
     d[angle] = (d[angle] + math.pi) % (2 * math.pi) - math.pi
@@ -64,8 +65,8 @@ def linearise(problem: Problem) -> tuple[np.ndarray, np.ndarray]:
     for i in range(dim):
         e = np.zeros(dim)
         e[i] = EPS
-        A[:, i] = _difference(problem, after(best + e, 0.0), after(best - e, 0.0)) / (2 * EPS)
-    B = _difference(problem, after(best, EPS), after(best, -EPS)) / (2 * EPS)
+        A[:, i] = difference(problem, after(best + e, 0.0), after(best - e, 0.0)) / (2 * EPS)
+    B = difference(problem, after(best, EPS), after(best, -EPS)) / (2 * EPS)
     return A, B
 
 
