@@ -87,6 +87,68 @@ def test_plan_scores_are_the_episodes_of_the_plans(name, rng):
         assert got == pytest.approx(want, rel=1e-12, abs=0)
 
 
+@pytest.mark.parametrize('name', ['acrobot', 'pdip'])
+def test_bounded_scores_decide_what_full_scores_decide(name, rng):
+    """With a bound the stepping stops early: where the full scores' least is within the
+    bound, that least and its lane are still the full scores' and every other score is above
+    it; where it is not, every score is above the bound."""
+    problem = load_problem(name)
+    n, dim = 160, problem.dim
+    s = problem.initial_state.astype(np.float64)
+    P = HoldCatch(load_problem(f'{name}_hold'), 0).P0
+    early = 0
+    for trial in range(12):
+        plans = rng.integers(0, len(problem.action_values), size=(PLAN_LANES, n))
+        ellipse = BOX if trial % 2 else (P, 1e3)
+        full = scores(problem, plans, s, 0, MIXED[name], ellipse)
+        assert (full < FAR).any()
+        for bound in (np.inf, -1.0, float(np.sort(full)[3]), float(full.min()) - 1.0, 2.0):
+            got = np.empty(PLAN_LANES)
+            plan_scores(model_id(problem.model), s, plans, 0, n, problem.params(),
+                        np.asarray(problem.action_values, dtype=np.float64),
+                        *goal_arrays(problem), problem.is_angle, MIXED[name], *ellipse,
+                        np.empty((dim, PLAN_LANES)), np.empty(PLAN_LANES),
+                        np.empty(PLAN_LANES), np.empty(PLAN_LANES), got, bound)
+            if bound < 0:
+                assert got.tolist() == full.tolist()
+                continue
+            within = bound if bound < FAR else np.inf
+            if full.min() <= within:
+                assert got.min() == full.min() and got.argmin() == full.argmin()
+                rest = got != got.min()
+                assert got[~rest].tolist() == full[~rest].tolist()
+                assert (got[rest] > full.min()).all()
+            else:
+                assert (got > within).all()
+            early += int((got != full).any())
+    assert early > 0                      # the bound did stop some scoring early
+
+
+@pytest.mark.parametrize('name', ['acrobot', 'acrobot_hold'])
+def test_pruned_rounds_keep_the_plans_full_scoring_keeps(name, rng):
+    """improve_plan with its rounds pruned: the same plans and scores as scored in full,
+    from states spread about the start, goals some plans reach and some do not."""
+    problem = load_problem(name)
+    n = 300
+    ellipse = (HoldCatch(problem, 0).P0, 1e3) if name.endswith('hold') else BOX
+    entered = 0
+    for trial in range(8):
+        s = problem.initial_state + rng.uniform(-0.05, 0.05, problem.dim)
+        start = rng.integers(0, len(problem.action_values), size=n)
+        t0 = int(rng.integers(0, 40))
+        out = []
+        for prune in (True, False):
+            plan = start.copy()
+            got = improve_plan(model_id(problem.model), s, plan, t0, n, problem.params(),
+                               np.asarray(problem.action_values, dtype=np.float64),
+                               *goal_arrays(problem), problem.is_angle, MIXED['acrobot'],
+                               *ellipse, 10, 100, np.uint64(1000 + trial), prune)
+            out.append((got, plan.tolist()))
+        assert out[0] == out[1]
+        entered += out[0][0] < FAR
+    assert entered >= 4                   # most rounds had plans entering (pruned early)
+
+
 def test_improving_never_worsens_and_reports_the_plan_it_keeps():
     problem = load_problem('acrobot')
     n = 150

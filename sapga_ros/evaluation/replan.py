@@ -77,11 +77,19 @@ def lanes_quad(S, lanes, best, is_angle, P, out):
 
 @kernel(nogil=True)
 def plan_scores(model, s, cand, t0, n, p, actions, best, inv_scale, fixed, is_angle, delta,
-                P, c, S, a, r, d, score):
+                P, c, S, a, r, d, score, bound=-1.0):
     """score[k] of plan cand[k] (action indices) from the state s, its steps t0..n-1 on the
     model with parameters p, the 16 plans side by side.  With ``c`` > 0 the goal is the
     ellipsoid x'Px <= c about ``best`` instead of S_delta (a hold task's catch), and a plan
-    that never enters it scores FAR (1 + its smallest x'Px / c)."""
+    that never enters it scores FAR (1 + its smallest x'Px / c).
+
+    ``bound`` >= 0 asks only which plan scores least when that is <= ``bound``: the
+    stepping stops once no plan still outside the goal can score lower (after the step
+    ``bound``, when that is below FAR, or after the step the first plan entered); such a
+    plan scores FAR (1 + its smallest distance so far).  If full scoring's least is <=
+    ``bound``, the least score and its first lane are full scoring's and every other score
+    is above it; if not, every score is above ``bound`` too.  So a round of
+    ``improve_plan`` decides as it would on full scores."""
     lanes = cand.shape[0]
     first = np.zeros(lanes, dtype=np.int64)
     dmin = np.full(lanes, np.inf)
@@ -89,6 +97,7 @@ def plan_scores(model, s, cand, t0, n, p, actions, best, inv_scale, fixed, is_an
         S[:, k] = s
     left = lanes
     goal = c if c > 0.0 else delta
+    stop = bound if 0.0 <= bound < FAR else np.inf   # no plan outside the goal beats it
     for t in range(t0, n):
         for k in range(lanes):
             a[k] = actions[cand[k, t]]
@@ -103,7 +112,9 @@ def plan_scores(model, s, cand, t0, n, p, actions, best, inv_scale, fixed, is_an
                 if d[k] <= goal:
                     first[k] = t - t0 + 1
                     left -= 1
-        if left == 0:
+                    if bound >= 0.0 and first[k] < stop:
+                        stop = first[k]
+        if left == 0 or t - t0 + 1 >= stop:
             break
     for k in range(lanes):
         score[k] = first[k] if first[k] > 0 else FAR * (
@@ -112,9 +123,10 @@ def plan_scores(model, s, cand, t0, n, p, actions, best, inv_scale, fixed, is_an
 
 @kernel(nogil=True)
 def improve_plan(model, s, plan, t0, n, p, actions, best, inv_scale, fixed, is_angle, delta,
-                 P, c, rounds, window, key):
+                 P, c, rounds, window, key, prune=True):
     """Improve plan[t0:n] in place from the state s (see the module docstring; the goal as
-    ``plan_scores`` takes it); its score."""
+    ``plan_scores`` takes it); its score.  ``prune``: score each round's plans only as far
+    as deciding the round needs (the same plan and score as scoring them in full)."""
     lanes = PLAN_LANES
     dim = s.shape[0]
     cand = np.empty((lanes, n), dtype=np.int64)
@@ -135,8 +147,10 @@ def improve_plan(model, s, plan, t0, n, p, actions, best, inv_scale, fixed, is_a
                 j = t0 + int(span * uniform(key, S_PLAN, counter))
                 cand[k, j] = int(na * uniform(key, S_PLAN, counter + np.uint64(1)))
                 counter += np.uint64(2)
+        # only the least score and whether it is <= the plan's matter (see plan_scores)
         plan_scores(model, s, cand, t0, n, p, actions, best, inv_scale, fixed, is_angle,
-                    delta, P, c, S, a, r, d, score)
+                    delta, P, c, S, a, r, d, score,
+                    (current if rnd > 0 else np.inf) if prune else -1.0)
         if rnd == 0:
             current = score[0]
         k_best = 0
