@@ -31,6 +31,15 @@ MAX_QOS_DEPTH = 100_000
 TRIAL_STEPS = 2
 TOPIC_ROLES = ('state', 'command', 'reward', 'event', 'exemplar', 'command_stamped',
                'markers')
+# each role's topic unless ``ros.topics`` names another (relative names: in the node's
+# namespace)
+DEFAULT_TOPICS = {'state': 'joint_states', 'command': 'command', 'reward': 'reward',
+                  'event': 'episode_event', 'exemplar': 'exemplar_index',
+                  'command_stamped': 'command_stamped', 'markers': 'markers'}
+# topics the nodes publish besides the roles' (the MuJoCo robot's effort command, the
+# simulated clock, diagnostics, and rclpy's own): no role may take one of these names
+EFFORT_TOPIC = 'effort_controller/commands'
+RESERVED_TOPICS = (EFFORT_TOPIC, 'clock', 'diagnostics', 'rosout', 'parameter_events')
 QOS_CHOICES = {'reliability': ('reliable', 'best_effort'),
                'durability': ('volatile', 'transient_local'),
                'history': ('keep_last', 'keep_all')}
@@ -91,6 +100,7 @@ def check_ros(ros: dict, source: str, joints_needed: list[str]) -> None:
         if not isinstance(name, str) or len(name) > 200 or not _TOPIC_RE.fullmatch(name):
             raise ConfigError(f'{source}: ros.topics.{role}: expected a ROS topic name, '
                               f'got {str(name)[:40]!r}')
+    _check_distinct_topics({**DEFAULT_TOPICS, **topics}, source)
     qos = ros.get('qos') or {}
     if not isinstance(qos, dict):
         raise ConfigError(f'{source}: ros.qos: expected a mapping')
@@ -104,6 +114,18 @@ def check_ros(ros: dict, source: str, joints_needed: list[str]) -> None:
             not 1 <= depth <= MAX_QOS_DEPTH:
         raise ConfigError(f'{source}: ros.qos.depth: expected an integer in '
                           f'[1, {MAX_QOS_DEPTH}], got {str(depth)[:40]!r}')
+
+
+def _check_distinct_topics(names: dict, source: str) -> None:
+    """Every role on a topic of its own (each carries its own message type), none on a topic
+    the nodes publish otherwise; a leading '/' does not make a name another."""
+    taken = {name: f'the nodes\' own {name!r}' for name in RESERVED_TOPICS}
+    for role, name in names.items():
+        plain = name.lstrip('/')
+        if plain in taken:
+            raise ConfigError(f'{source}: ros.topics.{role}: {name!r} is the topic of '
+                              f'{taken[plain]}; each role needs a topic of its own')
+        taken[plain] = f'ros.topics.{role}'
 
 
 def check_physics(problem: Any) -> None:

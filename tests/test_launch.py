@@ -120,6 +120,31 @@ def test_unknown_launches_and_bad_policy_files_are_refused_before_any_node_start
     assert not (tmp_path / 'rec').exists()
 
 
+def test_outputs_that_are_not_directories_are_refused_before_any_node_starts(
+        tmp_path, capsys):
+    """``--out`` a device, a file, a FIFO or a path through a file: one line naming it, exit
+    2, for both launches that record, and nothing is made."""
+    problem = load_problem('acrobot')
+    rng = np.random.default_rng(3)
+    ExemplarPolicy(problem, rng.uniform(problem.low, problem.high, (10, 4)),
+                   rng.integers(0, 3, 10)).save(tmp_path / 'p.json')
+    (tmp_path / 'file').write_text('x')
+    os.mkfifo(tmp_path / 'fifo')
+    for out, said in (('/dev/null', 'exists and is not a directory'),
+                      (tmp_path / 'file', 'exists and is not a directory'),
+                      (tmp_path / 'fifo', 'exists and is not a directory'),
+                      (tmp_path / 'file' / 'x', 'is not a folder'),
+                      (tmp_path / 'no' / 'x', 'does not exist')):
+        for name, args in (('swingup', ['--policy', str(tmp_path / 'p.json')]),
+                           ('train_deploy', ['--steps', '1000'])):
+            assert run_launch(name, [*args, '--out', str(out)]) == 2
+            got = capsys.readouterr()
+            lines = [line for line in (got.out + got.err).splitlines()
+                     if f'--out {out}' in line]
+            assert len(lines) == 1 and said in lines[0] and 'Traceback' not in got.err
+    assert (tmp_path / 'file').read_text() == 'x' and not (tmp_path / 'no').exists()
+
+
 # end to end over real nodes -------------------------------------------------------------
 
 def launch(args: list[str], tmp_path: Path) -> subprocess.CompletedProcess:

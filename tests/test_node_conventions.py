@@ -209,6 +209,29 @@ def test_bad_params_files_and_wrongly_typed_overrides_give_one_line_and_exit_2(
     assert named in lines[0], lines
 
 
+@pytest.mark.parametrize('exe,args,words', [
+    ('sim_node', ['-p', 'engine:=mujoco', '-p', 'effort_topic:=/joint_states'],
+     'ros.topics.state (JointState) and effort_topic (Float64MultiArray)'),
+    ('sim_node', ['-r', 'command:=joint_states'],
+     'ros.topics.state (JointState) and ros.topics.command (Float64)'),
+    ('acrobot_sim', ['-r', 'reward:=/clock'], 'ros.topics.reward (Float64) and the clock'),
+    ('policy_node', ['-p', 'command_output:=effort_array', '-p', 'effort_topic:=markers'],
+     'ros.topics.markers (MarkerArray) and effort_topic (Float64MultiArray)'),
+    ('policy_node', ['-r', 'exemplar_index:=joint_states'],
+     'ros.topics.exemplar (Int32) and ros.topics.state (JointState)'),
+])
+def test_two_topics_of_one_node_on_one_name_are_one_line_and_exit_2(exe, args, words):
+    """A topic parameter or a remapping that puts two of a node's topics of different types
+    on one name: one line naming both, exit 2, before rcl is asked (a subscription it
+    refused printed rcutils' error log and 'invalid allocator')."""
+    done = run(exe, '--ros-args', '-p', 'problem:=acrobot', *args)
+    text = done.stdout + done.stderr
+    lines = [line for line in text.splitlines() if line.strip()]
+    assert done.returncode == 2 and 'Traceback' not in text and 'rcutils' not in text, text
+    assert len(lines) == 1 and lines[0].startswith(f'{exe}: error: '), lines
+    assert words in lines[0], lines
+
+
 def test_rcl_refusals_of_ros_args_are_one_line_without_rcl_log(tmp_path):
     """A params file PyYAML reads but rcl refuses (mixed array), and a malformed -p rule:
     one line each, exit 2, rcl's own log line and traceback dropped."""

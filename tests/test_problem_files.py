@@ -50,6 +50,17 @@ def _parse(doc: dict):
     ({'qos': {'durability': 3}}, 'ros.qos.durability'),
     ({'qos': {'dept': 3}}, "ros.qos: unknown key 'dept'"),
     ({'topic': {}}, "ros: unknown key 'topic'"),
+    # two roles on one topic: each carries its own message type
+    ({'topics': {'state': 'joint_states', 'reward': 'joint_states'}},
+     "ros.topics.reward: 'joint_states' is the topic of ros.topics.state"),
+    ({'topics': {'state': 'x', 'command': 'x'}}, "ros.topics.command: 'x'"),
+    ({'topics': {'event': '/reward'}}, "ros.topics.event: '/reward' is the topic of "
+                                       'ros.topics.reward'),
+    ({'topics': {'markers': 'exemplar_index'}}, 'ros.topics.markers'),
+    # nor on one the nodes publish otherwise
+    ({'topics': {'state': '/clock'}}, "ros.topics.state: '/clock' is the topic of the nodes'"),
+    ({'topics': {'reward': 'diagnostics'}}, 'ros.topics.reward'),
+    ({'topics': {'command': 'effort_controller/commands'}}, 'ros.topics.command'),
 ])
 def test_a_bad_ros_section_is_refused_naming_the_field(ros, word):
     doc = _acrobot()

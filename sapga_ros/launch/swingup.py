@@ -49,6 +49,7 @@ from typing import Sequence
 
 from sapga_ros.errors import SapgaError
 from sapga_ros.evaluation.replan_settings import check_plannable
+from sapga_ros.io.outputs import check_output_dir
 from sapga_ros.launch.supervisor import Supervisor, launch_main
 from sapga_ros.launch.launch_node import LaunchRos
 from sapga_ros.launch.ros_args import RosOptions, add_ros_arguments
@@ -129,6 +130,7 @@ def run_swingup(args: argparse.Namespace, sup: Supervisor) -> SwingupResult:
     if args.replan and (args.delta is not None or args.n_step is not None):
         raise SapgaError('--replan plans for the policy\'s own delta and the problem\'s '
                          'episode length: no --delta or --n-step with it')
+    check_output_dir(Path(args.out), '--out')                  # before any node starts
     opts = StackOptions(problem, Path(args.out).resolve(), policy_delta(policy, args.delta),
                         args.episodes, args.mode, args.real_time_factor, args.engine,
                         args.n_step, args.replan)

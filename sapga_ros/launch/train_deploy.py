@@ -26,6 +26,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Sequence
 
+from sapga_ros.io.outputs import check_output_dir
 from sapga_ros.launch.supervisor import LaunchError, Supervisor, launch_main
 from sapga_ros.launch.ros_args import RosOptions, add_ros_arguments
 from sapga_ros.launch.swingup import (DeployStack, LaunchRos, StackOptions, episode_lines,
@@ -76,6 +77,7 @@ def run_train_deploy(args: argparse.Namespace, sup: Supervisor) -> TrainDeployRe
     """The launch itself, under ``sup`` (which stops the nodes whatever happens)."""
     from sapga_ros.policies.runnable import policy_from_json
     problem = load_problem(args.problem)
+    check_output_dir(Path(args.out), '--out')                  # before any node starts
     out = Path(args.out).resolve()
     delta = problem.resolve('delta', args.delta)
     policy_file = out / 'policy.json'

@@ -42,6 +42,7 @@ import os
 from typing import Any
 
 import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.parameter import Parameter
@@ -66,7 +67,7 @@ from sapga_ros.nodes.policy_params import PARAMETERS, check_setting
 from sim_nodes.problem import Problem, load_problem
 from sim_nodes.ros.commands import StampedCommand
 from sim_nodes.ros.common import (QUIET_PUBLISHER, THROTTLE_S, JointStateLayout, MessageError,
-                                  run_node, stamp_ns, topic_names, topic_qos)
+                                  check_topic_types, run_node, stamp_ns, topic_names, topic_qos)
 from sim_nodes.ros.diagnostics import OK, WARN, NodeDiagnostics, Report
 from sim_nodes.ros.dropped import DropCounter
 from sim_nodes.ros.executors import node_executor, with_info
@@ -129,6 +130,13 @@ class PolicyNode(GuardedNode):
         self.unanswered = 0            # states seen with no policy loaded
 
         topics = topic_names(p)
+        check_topic_types(self, [
+            *((f'ros.topics.{role}', topics[role], kind) for role, kind in (
+                ('command_stamped', JointState), ('exemplar', Int32),
+                ('markers', MarkerArray), ('state', JointState))),
+            *((('effort_topic', values['effort_topic'], Float64MultiArray),)
+              if self.mapping.command_output == 'effort_array' else ()),
+            ('the diagnostics', '/diagnostics', DiagnosticArray)])
         qos = topic_qos(p, self.qos_profile)
         quiet = {'event_callbacks': QUIET_PUBLISHER}
         self._command_pub = self.create_publisher(JointState, topics['command_stamped'], qos,

@@ -20,23 +20,22 @@ from __future__ import annotations
 
 import array
 import math
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 from rclpy.clock import Clock, ClockType
 from rclpy.event_handler import PublisherEventCallbacks
+from rclpy.node import Node
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy,
                        qos_profile_sensor_data)
 from sensor_msgs.msg import JointState
 
 from sim_nodes.errors import ConfigError, SapgaError
 from sim_nodes.problem import Problem
+from sim_nodes.problem_checks import DEFAULT_TOPICS
 from sim_nodes.ros.runner import NodeExit, one_line, run_node, spin_guarded  # noqa: F401
 
 THROTTLE_S = 2.0  # [s] between repeats of a warning about bad input
-DEFAULT_TOPICS = {'state': 'joint_states', 'command': 'command', 'reward': 'reward',
-                  'event': 'episode_event', 'exemplar': 'exemplar_index',
-                  'command_stamped': 'command_stamped', 'markers': 'markers'}
 QOS_PROFILES = ('reliable', 'sensor_data')     # values of the nodes' qos_profile parameter
 # Late joiners (recorders, tests) get the last episode events; volatile readers still match.
 EVENT_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE,
@@ -72,6 +71,21 @@ def topic_names(problem: Problem) -> dict[str, str]:
                               f'got {value!r}')
         names[str(key)] = value
     return names
+
+
+def check_topic_types(node: Node, uses: Sequence[tuple[str, str, type]]) -> None:
+    """Refuse, before a node makes its publishers and subscriptions, two of its topics
+    (what, name, message type) that resolve, with its namespace and remappings, to one name
+    with different types (rcl refuses the second, and a refused subscription reports a
+    misleading 'invalid allocator')."""
+    seen: dict[str, tuple[str, type]] = {}
+    for what, name, msg_type in uses:
+        resolved = node.resolve_topic_name(name)
+        other = seen.setdefault(resolved, (what, msg_type))
+        if other[1] is not msg_type:
+            raise ConfigError(f'{other[0]} ({other[1].__name__}) and {what} '
+                              f'({msg_type.__name__}) are both the topic {resolved}: check '
+                              'ros.topics, the topic parameters and --ros-args -r remappings')
 
 
 def _choice(cfg: dict, key: str, table: dict, default: str, source: str) -> Any:

@@ -32,6 +32,7 @@ import rclpy
 import yaml
 from rclpy.exceptions import ParameterException
 from rclpy.executors import Executor, ExternalShutdownException
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.task import Future
 
@@ -196,6 +197,20 @@ def _summary(module: Any) -> str:
 
 # run ------------------------------------------------------------------------------------------
 
+def _construct(make_node: Callable[[], Node]) -> Node:
+    """The node; a publisher or subscription rcl cannot create (two of the node's topics
+    resolved to one name with different types, by its parameters or remappings) is a user
+    error of one line, not a traceback."""
+    try:
+        return make_node()
+    except _rclpy.RCLError as exc:
+        text = str(exc).split(', at /')[0]
+        if 'incompatible type' in text:
+            text += (' (two of this node\'s topics resolve to one name: check its topic '
+                     'parameters and --ros-args -r remappings)')
+        raise SapgaError(text) from None
+
+
 def run_node(make_node: Callable[[], Node], args: list[str] | None = None,
              executor: Callable[[Node], Executor] | None = None,
              parameters: Callable[[], Sequence[Param]] = tuple, name: str | None = None,
@@ -218,7 +233,7 @@ def run_node(make_node: Callable[[], Node], args: list[str] | None = None,
     code = 0
     try:
         init_ros(args, parameters(), **init_kwargs)
-        node = make_node()
+        node = _construct(make_node)
         ex = executor(node) if executor is not None else rclpy.get_global_executor()
         ex.add_node(node)
         spin_guarded(ex, node.get_logger())

@@ -40,6 +40,7 @@ from types import SimpleNamespace
 from typing import Any, Callable
 
 import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock
@@ -57,7 +58,8 @@ from sim_nodes.problem import load_problem
 from sim_nodes.ros.answer_wait import AnswerWait
 from sim_nodes.ros.commands import CommandCheck, StampedCommand
 from sim_nodes.ros.common import (CLOCK_QOS, EVENT_QOS, QUIET_PUBLISHER, JointStateLayout,
-                                  MessageError, run_node, steady_clock, topic_names, topic_qos)
+                                  MessageError, check_topic_types, run_node, steady_clock,
+                                  topic_names, topic_qos)
 from sim_nodes.ros.diagnostics import OK, WARN, NodeDiagnostics, Report
 from sim_nodes.ros.dropped import DropCounter
 from sim_nodes.ros.executors import node_executor, with_info
@@ -111,6 +113,13 @@ class SimNode(GuardedNode):
                                      self.get_logger())
 
         topics = topic_names(problem)
+        check_topic_types(self, [
+            *((f'ros.topics.{role}', topics[role], kind) for role, kind in (
+                ('state', JointState), ('reward', Float64), ('markers', MarkerArray),
+                ('event', String), ('command', Float64), ('command_stamped', JointState))),
+            *((('effort_topic', engine['effort_topic'], Float64MultiArray),)
+              if self._robot is not None else ()),
+            ('the clock', '/clock', Clock), ('the diagnostics', '/diagnostics', DiagnosticArray)])
         qos = topic_qos(problem, self.qos_profile)
         quiet = {'event_callbacks': QUIET_PUBLISHER}
         self._state_pub = self.create_publisher(JointState, topics['state'], qos, **quiet)
