@@ -5,13 +5,18 @@ counts its rail contacts; the committed sequences of docs/limits replay to their
 from __future__ import annotations
 
 import itertools
+import json
+from pathlib import Path
 
 import numpy as np
+import pytest
 
 from sapga_ros.analysis.limit import beam_limit, with_goal_scale
 from sim_nodes.goal import delta_of
 from sim_nodes.models import model_module
 from sim_nodes.problem import load_problem
+
+LIMITS = Path(__file__).parents[1] / 'docs' / 'limits'
 
 
 def brute_force(problem, depth):
@@ -111,3 +116,43 @@ def test_the_committed_limit_sequences_replay_to_their_numbers():
         reading = 'alternative' if doc['alternative_goal'] else 'printed'
         got = {r.reading: r for r in replay(load_problem(doc['problem']), doc['actions'])}
         assert (got[reading].delta, got[reading].step) == (doc['delta'], doc['step']), path
+
+
+def _acrobot(**changes) -> dict:
+    return {**json.loads((LIMITS / 'acrobot.json').read_text()), **changes}
+
+
+# Limit files that do not fit their problem (acrobot: actions -2, 0, 2; 400 steps an
+# episode; 4 state coordinates; no alternative goal reading).
+MISFITS = {
+    'action outside the set': (_acrobot(actions=[2.0] * 399 + [7.0]), 'actions[399]'),
+    'extreme action': (_acrobot(actions=[1e308] * 400), 'actions[0]'),
+    'between two actions': (_acrobot(actions=[1.0] * 400), 'actions[0]'),
+    'more steps than an episode': (_acrobot(actions=[0.0] * 401, step=401), 'step'),
+    'goal scale of another problem': (_acrobot(goal_scale=[1.0] * 6), 'goal_scale'),
+    'negative goal scale': (_acrobot(goal_scale=[-1.0] * 4), 'goal_scale[0]'),
+    'alternative goal it has not': (_acrobot(alternative_goal=True), 'alternative_goal'),
+    'extreme delta': (_acrobot(delta=1e308), 'delta'),
+    'unknown problem': (_acrobot(problem='nope'), "problem: unknown problem 'nope'"),
+}
+
+
+@pytest.mark.parametrize('misfit', MISFITS)
+def test_a_limit_file_that_does_not_fit_its_problem_is_one_line(tmp_path, misfit):
+    from process_helpers import sapga_in_process
+    doc, word = MISFITS[misfit]
+    path = tmp_path / 'limit.json'
+    path.write_text(json.dumps(doc))
+    done = sapga_in_process(['limit', '--replay', str(path)])
+    assert done.returncode == 2 and done.stdout == '', done.stdout
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and f'{path}: {word}' in lines[0], done.stderr
+
+
+def test_a_limit_file_that_fits_replays(tmp_path):
+    """The committed file, as it is and with the other actions of the set, replays."""
+    from process_helpers import sapga_in_process
+    path = tmp_path / 'limit.json'
+    path.write_text(json.dumps(_acrobot(actions=[-2.0, 0, 2] * 133 + [0], delta=None)))
+    done = sapga_in_process(['limit', '--replay', str(path)])
+    assert done.returncode == 0 and 'printed' in done.stdout, done.stderr
