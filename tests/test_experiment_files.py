@@ -89,6 +89,10 @@ DAMAGED = {
                                                          'policy_reached': 'yes'}),
     'negative rail contacts': lambda d: _with_run(d, final={**d['run']['final'],
                                                             'policy_rail_contacts': -1}),
+    'value beyond the figures': lambda d: _with_run(
+        d, best_value=[-1e308] * len(d['run']['steps'])),
+    'returned delta* beyond the figures': lambda d: _with_run(
+        d, final={**d['run']['final'], 'policy_delta_star': 1e308}),
     'not json': lambda d: '{"key": ',
     'values bomb': lambda d: '[' + '[],' * 2_000_000 + '[]]',
     'too large': lambda d: ' ' * (MAX_RUN_BYTES + 1),
@@ -140,7 +144,7 @@ def test_a_link_in_place_of_a_run_file_is_replaced_not_followed(exp_dir, tmp_pat
 
 SUMMARY_DAMAGE = {
     'not a list': ('{}', 'expected a list'),
-    'empty object': ('[{}]', "missing field 'grid'"),
+    'empty object': ('[{}]', "missing field 'steps'"),
     'problem a path': (None, 'problem'),
     'grid lengths': (None, 'best_value.mean'),
     'string value': (None, 'final.best_value_mean'),
@@ -177,6 +181,111 @@ def test_a_damaged_summary_is_one_line_from_report(exp_dir, damage):
     assert not (exp_dir.parent / 'outside').exists()
 
 
+def _curve(s: dict, key: str, mean: float, std: float) -> None:
+    s[key] = {'mean': [mean] * len(s['grid']), 'std': [std] * len(s['grid'])}
+
+
+def _final(s: dict, **changes) -> None:
+    s['final'].update(changes)
+
+
+def _drop(s: dict, *keys: str) -> None:
+    for key in keys:
+        s['final'].pop(key, None)
+
+
+# Values the report cannot print or draw, and sets of measures left incomplete: each is
+# one line naming summary.json and the field, before any figure is drawn.
+SUMMARY_FIELDS = {
+    'returned set without delta*': (
+        lambda s: _drop(s, 'policy_delta_star_mean', 'policy_delta_star_std',
+                        'policy_delta_star_ci95'), "missing field 'policy_delta_star_mean'"),
+    'returned set without value': (
+        lambda s: _drop(s, 'policy_value_mean', 'policy_value_std', 'policy_value_ci95'),
+        "missing field 'policy_value_mean'"),
+    'returned set without reached': (
+        lambda s: _drop(s, 'policy_reached'), "missing field 'policy_reached'"),
+    'hold set without fraction': (
+        lambda s: _final(s, holding=0, holding_clean=0), "missing field 'hold_fraction_mean'"),
+    'extreme delta* curve': (
+        lambda s: _curve(s, 'delta_star', 1e308, 1e308), 'delta_star.mean[0]'),
+    'negative delta* curve': (
+        lambda s: _curve(s, 'delta_star', -1.0, 0.0), 'delta_star.mean[0]'),
+    'extreme value curve': (
+        lambda s: _curve(s, 'best_value', -1e308, 0.0), 'best_value.mean[0]'),
+    'extreme value std': (
+        lambda s: _curve(s, 'best_value', 0.0, 1e308), 'best_value.std[0]'),
+    'negative std': (lambda s: _curve(s, 'best_value', 0.0, -1.0), 'best_value.std[0]'),
+    'extreme grid': (lambda s: s.update(grid=[1e308] * len(s['grid'])), 'grid[0]'),
+    'extreme final value': (lambda s: _final(s, best_value_mean=-1e308),
+                            'final.best_value_mean'),
+    'extreme final delta*': (lambda s: _final(s, delta_star_std=1e300),
+                             'final.delta_star_std'),
+    'extreme returned value': (lambda s: _final(s, policy_value_mean=1e308),
+                               'final.policy_value_mean'),
+    'extreme interval': (lambda s: _final(s, best_value_ci95=[-1e308, 0.0]),
+                         'final.best_value_ci95[0]'),
+    'interval upside down': (lambda s: _final(s, delta_star_ci95=[0.5, 0.1]),
+                             'final.delta_star_ci95'),
+    'more achieved than runs': (lambda s: _final(s, achieved=s['final']['runs'] + 1),
+                                'final.achieved'),
+    'extreme delta': (lambda s: s.update(delta=1e300), '.delta'),
+    'unknown problem': (lambda s: s.update(problem='nope'), "problem: unknown problem 'nope'"),
+}
+
+
+@pytest.mark.parametrize('damage', SUMMARY_FIELDS)
+def test_a_summary_field_the_report_cannot_use_is_one_line(exp_dir, damage):
+    doc = json.loads((exp_dir / 'summary.json').read_text())
+    assert 'policy_value_mean' in doc[0]['final']          # the run set the returned measures
+    change, word = SUMMARY_FIELDS[damage]
+    change(doc[0])
+    (exp_dir / 'summary.json').write_text(json.dumps(doc))
+    one_line_error(in_process('experiment', 'report', str(exp_dir)), 'summary.json', word)
+    assert not (exp_dir / 'report.md').exists()
+
+
+def test_the_largest_accepted_values_draw_without_a_warning(exp_dir):
+    """Every value the summary's schema accepts works: the bounds themselves, the smallest
+    positive numbers, curves of nulls, a one-point grid; the figures are drawn and nothing
+    is said on stderr."""
+    import warnings
+
+    from sapga_ros.training.run_files import MAX_DELTA_STAR, MAX_VALUE
+    from sapga_ros.viz.report import write_report
+    doc = json.loads((exp_dir / 'summary.json').read_text())
+    s = doc[0]
+    rows = [json.loads(json.dumps(s)) for _ in range(4)]
+    _curve(rows[0], 'best_value', -MAX_VALUE, MAX_VALUE)
+    _curve(rows[0], 'delta_star', MAX_DELTA_STAR, MAX_DELTA_STAR)
+    _final(rows[0], best_value_mean=MAX_VALUE, best_value_std=MAX_VALUE,
+           best_value_ci95=[-MAX_VALUE, MAX_VALUE], delta_star_mean=MAX_DELTA_STAR,
+           policy_value_mean=-MAX_VALUE)
+    _curve(rows[1], 'best_value', 5e-324, 5e-324)
+    _curve(rows[1], 'delta_star', 5e-324, 0.0)
+    _curve(rows[2], 'best_value', None, None)
+    _curve(rows[2], 'delta_star', None, None)
+    rows[3].update(grid=[float(s['steps'])], achieved_fraction=[1.0], delta=0.0)
+    _curve(rows[3], 'best_value', 0.0, 0.0)
+    _curve(rows[3], 'delta_star', 0.0, 0.0)
+    (exp_dir / 'summary.json').write_text(json.dumps(rows))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter('always')
+        path = write_report(exp_dir, with_figure5=False)
+    assert not caught, [str(w.message) for w in caught]
+    assert '1000000000.0 ± 1000000000.0' in path.read_text()
+    assert (exp_dir / 'mountain.png').stat().st_size > 1000
+
+
+def test_a_hold_row_whose_run_lacks_the_hold_measures_names_the_run_file(exp_dir):
+    doc = json.loads((exp_dir / 'summary.json').read_text())
+    _final(doc[0], holding=0, holding_clean=0, hold_fraction_mean=0.5, hold_fraction_std=0.0,
+           rail_contacts_mean=0.0)
+    (exp_dir / 'summary.json').write_text(json.dumps(doc))
+    one_line_error(in_process('experiment', 'report', str(exp_dir)), '11-seed0.json',
+                   "run.final: missing field 'hold_fraction'")
+
+
 @pytest.mark.parametrize('name,text,word', [
     ('experiment.json', '{"wall_s": "slow"}', 'wall_s'),
     ('experiment.json', '[1, 2]', 'expected an object'),
@@ -192,6 +301,34 @@ def test_damaged_info_and_limit_files_are_one_line_from_report(exp_dir, name, te
     (exp_dir / name).write_text(text)
     one_line_error(in_process('experiment', 'report', str(exp_dir)), name.split('/')[-1],
                    word)
+
+
+def test_a_run_policy_the_report_cannot_load_names_the_run_file(exp_dir):
+    """The hold figures evaluate the best run's policy: its error names that run file."""
+    doc = json.loads((exp_dir / 'summary.json').read_text())
+    _final(doc[0], holding=0, holding_clean=0, hold_fraction_mean=0.5, hold_fraction_std=0.0,
+           rail_contacts_mean=0.0)
+    (exp_dir / 'summary.json').write_text(json.dumps(doc))
+    for seed in (0, 1):
+        path = exp_dir / 'runs' / f'11-seed{seed}.json'
+        run = json.loads(path.read_text())
+        run['run']['final'].update(hold_fraction=0.5, first_entry_step=1, rail_contacts=0)
+        del run['run']['policy']['problem']
+        path.write_text(json.dumps(run))
+    one_line_error(in_process('experiment', 'report', str(exp_dir)), 'runs/11-seed',
+                   ".json: run.policy: missing field 'problem'")
+
+
+def test_a_limit_file_that_does_not_fit_its_problem_is_one_line_from_report(exp_dir):
+    """The report replays every limit file: actions outside the problem's set are refused
+    before the replay (the other fields' fit: tests/test_limit.py)."""
+    doc = json.loads((Path(__file__).parents[1] / 'docs' / 'limits' / 'acrobot.json')
+                     .read_text())
+    (exp_dir / 'limits').mkdir(exist_ok=True)
+    (exp_dir / 'limits' / 'acrobot.json').write_text(json.dumps(
+        {**doc, 'actions': [1e308] * doc['step']}))
+    one_line_error(in_process('experiment', 'report', str(exp_dir)), 'acrobot.json',
+                   'actions[0]', '1e+308')
 
 
 def test_a_values_bomb_summary_is_refused_in_bounded_memory(exp_dir):

@@ -2,7 +2,11 @@
 input by ``sapga experiment report``: every field the report uses is checked (types,
 shapes, lengths, finiteness, bounds) and a file that fails is one ``DataFileError`` line
 naming the file and the field.  Numbers written as null (nan, no data) read as None where
-the report shows them, so they print as ``n/a``.
+the report shows them, so they print as ``n/a``.  Every number the report prints or draws
+is bounded to what a figure can hold: values (returns, of order 1e4 in real runs) and delta*
+(below 10 in real runs) within the bounds of the run files (``run_files.bounds``);
+the measures that come as a set (the returned policies', the hold task's) are all there
+or all absent.
 """
 from __future__ import annotations
 
@@ -15,7 +19,8 @@ from sapga_ros.io import schema
 from sapga_ros.io.jsonfile import read_json
 from sapga_ros.policies.controller_row import MAX_DELAY
 from sapga_ros.training.experiment_set import MAX_SEEDS, MAX_STEPS, METHODS
-from sim_nodes.params import MAX_EPISODES
+from sapga_ros.training.run_files import MAX_COUNT, bounds
+from sim_nodes.params import DELTA, MAX_EPISODES
 
 MAX_SUMMARY_BYTES = 16 << 20
 MAX_INFO_BYTES = 1 << 20
@@ -29,80 +34,116 @@ def _optional(x: float) -> float | None:
     return None if math.isnan(x) else x
 
 
-def _ci(value: Any, where: str) -> list[float] | None:
+def _ci(value: Any, where: str, low: float, high: float) -> list[float] | None:
+    """An interval [a, b] (a <= b) within [low, high]; None for null."""
     if value is None:
         return None
-    return schema.numbers(value, where, 2, length=2)
+    ci = schema.numbers(value, where, 2, length=2, low=low, high=high)
+    if ci[0] > ci[1]:
+        raise DataFileError(f'{where}: expected [low, high] with low <= high, got {ci}')
+    return ci
 
 
-def _final(doc: Any, where: str, runs_max: int) -> dict:
-    f = schema.mapping(doc, where)
-    out: dict[str, Any] = {
-        'achieved': schema.integer(schema.field(f, 'achieved', where), f'{where}.achieved',
-                                   0, runs_max),
-        'runs': schema.integer(schema.field(f, 'runs', where), f'{where}.runs', 0, runs_max)}
-    for key in ('best_value', 'delta_star', 'delta_star_alt', 'greedy_delta_star',
-                'policy_value', 'policy_delta_star'):
-        if key == 'best_value' or key == 'delta_star' or f'{key}_mean' in f:
-            for part in ('mean', 'std'):
-                name = f'{key}_{part}'
-                out[name] = _optional(schema.number(schema.field(f, name, where),
-                                                    f'{where}.{name}', null=True))
-            out[f'{key}_ci95'] = _ci(f.get(f'{key}_ci95'), f'{where}.{key}_ci95')
-    if 'delta_star_alt_mean' in out:
-        out['achieved_alt'] = schema.integer(schema.field(f, 'achieved_alt', where),
-                                             f'{where}.achieved_alt', 0, runs_max)
-    for key in ('achieved', 'achieved_alt', 'policy_reached'):
-        if f.get(f'{key}_ci95') is not None:           # Wilson intervals of the counts
-            out[f'{key}_ci95'] = schema.numbers(f[f'{key}_ci95'], f'{where}.{key}_ci95', 2,
-                                                length=2, low=0, high=1)
-    if 'policy_value_mean' in out:                   # the returned policies' own episodes
-        for key in ('policy_reached', 'policy_rail_runs'):
-            out[key] = schema.integer(schema.field(f, key, where), f'{where}.{key}', 0,
-                                      runs_max)
-        out['policy_rail_contacts_mean'] = schema.number(
-            schema.field(f, 'policy_rail_contacts_mean', where),
-            f'{where}.policy_rail_contacts_mean', low=0)
-    if 'holding' in f:                               # the hold task's measures
-        for key in ('holding', 'holding_clean'):
-            out[key] = schema.integer(schema.field(f, key, where), f'{where}.{key}', 0,
-                                      runs_max)
-        for key, high in (('hold_fraction_mean', 1), ('hold_fraction_std', 1),
-                          ('rail_contacts_mean', math.inf)):
-            out[key] = schema.number(schema.field(f, key, where), f'{where}.{key}', low=0,
-                                     high=high)
-        out['hold_fraction_ci95'] = _ci(f.get('hold_fraction_ci95'),
-                                        f'{where}.hold_fraction_ci95')
-        first = f.get('first_entry_mean')
-        out['first_entry_mean'] = None if first is None else schema.number(
-            first, f'{where}.first_entry_mean', low=0)
+def _parts(key: str) -> tuple[tuple[str, float, float], ...]:
+    """(part, low, high) of the mean and the standard deviation of measure ``key``."""
+    low, high = bounds(key)
+    return ('mean', low, high), ('std', 0.0, high - max(low, 0.0))
+
+
+def _measure(f: dict, key: str, where: str) -> dict:
+    """Mean, std (None for null) and 95 % interval of measure ``key`` of a final."""
+    out = {}
+    for part, low, high in _parts(key):
+        name = f'{key}_{part}'
+        out[name] = _optional(schema.number(schema.field(f, name, where), f'{where}.{name}',
+                                            low, high, null=True))
+    out[f'{key}_ci95'] = _ci(f.get(f'{key}_ci95'), f'{where}.{key}_ci95', *bounds(key))
     return out
 
 
-def _curve(doc: Any, where: str, length: int) -> dict:
+def _count(f: dict, key: str, where: str, runs: int) -> int:
+    return schema.integer(schema.field(f, key, where), f'{where}.{key}', 0, runs)
+
+
+def _final(doc: Any, where: str, runs_max: int) -> dict:
+    """The final measures; the returned policies' and the hold task's come as whole sets
+    (one field of a set present: every field of it required)."""
+    f = schema.mapping(doc, where)
+    runs = _count(f, 'runs', where, runs_max)
+    out: dict[str, Any] = {'achieved': _count(f, 'achieved', where, runs), 'runs': runs}
+    for key in ('best_value', 'delta_star'):
+        out.update(_measure(f, key, where))
+    for key in ('delta_star_alt', 'greedy_delta_star'):
+        if f'{key}_mean' in f:
+            out.update(_measure(f, key, where))
+    if 'delta_star_alt_mean' in out:
+        out['achieved_alt'] = _count(f, 'achieved_alt', where, runs)
+    returned = ('policy_value_mean', 'policy_delta_star_mean', 'policy_reached')
+    if any(key in f for key in returned):           # the returned policies' own episodes
+        for key in ('policy_value', 'policy_delta_star'):
+            out.update(_measure(f, key, where))
+        for key in ('policy_reached', 'policy_rail_runs'):
+            out[key] = _count(f, key, where, runs)
+        out['policy_rail_contacts_mean'] = schema.number(
+            schema.field(f, 'policy_rail_contacts_mean', where),
+            f'{where}.policy_rail_contacts_mean', 0, MAX_COUNT)
+    for key in ('achieved', 'achieved_alt', 'policy_reached'):
+        if key in out and f.get(f'{key}_ci95') is not None:   # Wilson intervals
+            out[f'{key}_ci95'] = _ci(f[f'{key}_ci95'], f'{where}.{key}_ci95', 0, 1)
+    if any(key in f for key in ('holding', 'hold_fraction_mean')):   # the hold task's
+        for key in ('holding', 'holding_clean'):
+            out[key] = _count(f, key, where, runs)
+        for key, high in (('hold_fraction_mean', 1), ('hold_fraction_std', 1),
+                          ('rail_contacts_mean', MAX_COUNT)):
+            out[key] = schema.number(schema.field(f, key, where), f'{where}.{key}', low=0,
+                                     high=high)
+        out['hold_fraction_ci95'] = _ci(f.get('hold_fraction_ci95'),
+                                        f'{where}.hold_fraction_ci95', 0, 1)
+        first = f.get('first_entry_mean')
+        out['first_entry_mean'] = None if first is None else schema.number(
+            first, f'{where}.first_entry_mean', 0, MAX_COUNT)
+    return out
+
+
+def _curve(doc: Any, where: str, length: int, key: str) -> dict:
+    """A curve over the grid: mean and std per grid point (nan for null)."""
     c = schema.mapping(doc, where)
     return {part: schema.numbers(schema.field(c, part, where), f'{where}.{part}', MAX_GRID,
-                                 length=length, null=True) for part in ('mean', 'std')}
+                                 length=length, null=True, low=low, high=high)
+            for part, low, high in _parts(key)}
+
+
+def _problem(value: Any, where: str) -> str:
+    """A configured problem's name (its policies are evaluated on it)."""
+    from sim_nodes.errors import UnknownProblemError
+    from sim_nodes.problem import load_problem
+    name = schema.text(value, where, pattern=NAME)
+    try:
+        load_problem(name)
+    except UnknownProblemError as exc:
+        raise DataFileError(f'{where}: {exc}') from None
+    return name
 
 
 def check_summary(doc: Any, where: str) -> dict:
     """One experiment's summary, checked."""
     s = schema.mapping(doc, where)
     get = lambda key: schema.field(s, key, where)   # noqa: E731
-    grid = schema.numbers(get('grid'), f'{where}.grid', MAX_GRID, min_len=1)
+    steps = schema.integer(get('steps'), f'{where}.steps', 1, MAX_STEPS)
+    grid = schema.numbers(get('grid'), f'{where}.grid', MAX_GRID, min_len=1, low=0,
+                          high=steps)
     seeds = schema.integers(get('seeds'), f'{where}.seeds', MAX_SEEDS, 0, MAX_SEEDS)
     method = schema.text(get('method'), f'{where}.method')
     if method not in METHODS:
         raise DataFileError(f'{where}.method: expected one of {", ".join(METHODS)}, '
                             f'got {method[:40]!r}')
     out = {'id': schema.integer(get('id'), f'{where}.id', 0, MAX_SEEDS),
-           'problem': schema.text(get('problem'), f'{where}.problem', pattern=NAME),
+           'problem': _problem(get('problem'), f'{where}.problem'),
            'method': method,
-           'delta': schema.number(get('delta'), f'{where}.delta', low=0),
-           'steps': schema.integer(get('steps'), f'{where}.steps', 1, MAX_STEPS),
-           'seeds': seeds, 'grid': grid,
-           'best_value': _curve(get('best_value'), f'{where}.best_value', len(grid)),
-           'delta_star': _curve(get('delta_star'), f'{where}.delta_star', len(grid)),
+           'delta': schema.number(get('delta'), f'{where}.delta', DELTA.low, DELTA.high),
+           'steps': steps, 'seeds': seeds, 'grid': grid,
+           **{key: _curve(get(key), f'{where}.{key}', len(grid), key)
+              for key in ('best_value', 'delta_star')},
            'achieved_fraction': schema.numbers(get('achieved_fraction'),
                                                f'{where}.achieved_fraction', MAX_GRID,
                                                length=len(grid), low=0, high=1),

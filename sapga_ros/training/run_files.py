@@ -23,15 +23,30 @@ MAX_RUN_BYTES = 16 << 20       # a run of 30 M steps with its policy is about 10
 MAX_RUN_VALUES = 500_000
 MAX_ROWS = 100_000             # log rows of one run
 MAX_COUNT = 10 ** 15
+MAX_VALUE = 1e9                # |value| of a return (real runs: of order 1e4)
+MAX_DELTA_STAR = 1e3           # delta* (real runs: below 10)
 
 
 def run_path(out: Path, exp_id: int, seed: int) -> Path:
     return out / 'runs' / f'{exp_id}-seed{seed}.json'
 
 
+def bounds(key: str) -> tuple[float, float]:
+    """[low, high] of the values of measure ``key``: a delta* or a value (a return); what a
+    summary's figures can draw."""
+    return (0.0, MAX_DELTA_STAR) if 'delta_star' in key else (-MAX_VALUE, MAX_VALUE)
+
+
 def _curve(run: dict, key: str, where: str, rows: int | None, null: bool) -> list[float]:
     return schema.numbers(schema.field(run, key, where), f'{where}.{key}', MAX_ROWS,
-                          length=rows, null=null, min_len=1)
+                          length=rows, null=null, min_len=1, low=bounds(key)[0],
+                          high=bounds(key)[1])
+
+
+def _measure(f: dict, key: str, where: str) -> float:
+    """A final measure (nan for null) within ``bounds(key)``."""
+    return schema.number(schema.field(f, key, where), f'{where}.{key}', *bounds(key),
+                         null=True)
 
 
 def check_run(doc: Any, where: str, seed: int | None = None) -> dict:
@@ -48,20 +63,18 @@ def check_run(doc: Any, where: str, seed: int | None = None) -> dict:
     dstar = _curve(run, 'delta_star', where, len(steps), True)
     fw = f'{where}.final'
     f = schema.mapping(schema.field(run, 'final', where), fw)
-    final = {'best_value': schema.number(schema.field(f, 'best_value', fw),
-                                         f'{fw}.best_value', null=True),
-             'delta_star': schema.number(schema.field(f, 'delta_star', fw),
-                                         f'{fw}.delta_star', low=0, null=True),
+    final = {'best_value': _measure(f, 'best_value', fw),
+             'delta_star': _measure(f, 'delta_star', fw),
              'achieved': schema.boolean(schema.field(f, 'achieved', fw), f'{fw}.achieved')}
-    for key in ('steps_per_s', 'delta_star_alt', 'greedy_delta_star', 'greedy_value'):
+    if 'steps_per_s' in f:
+        final['steps_per_s'] = schema.number(f['steps_per_s'], f'{fw}.steps_per_s', low=0,
+                                             null=True)
+    for key in ('delta_star_alt', 'greedy_delta_star', 'greedy_value'):
         if key in f:
-            final[key] = schema.number(f[key], f'{fw}.{key}', null=True)
-    if 'policy_value' in f:        # the returned policy's own episode
-        final['policy_value'] = schema.number(f['policy_value'], f'{fw}.policy_value',
-                                              null=True)
-        final['policy_delta_star'] = schema.number(
-            schema.field(f, 'policy_delta_star', fw), f'{fw}.policy_delta_star', low=0,
-            null=True)
+            final[key] = _measure(f, key, fw)
+    if 'policy_value' in f or 'policy_delta_star' in f:   # the returned policy's episode
+        for key in ('policy_value', 'policy_delta_star'):
+            final[key] = _measure(f, key, fw)
         final['policy_reached'] = schema.boolean(schema.field(f, 'policy_reached', fw),
                                                  f'{fw}.policy_reached')
         final['policy_rail_contacts'] = schema.integer(

@@ -10,11 +10,12 @@ from pathlib import Path
 
 import numpy as np
 
+from sapga_ros.errors import DataFileError
 from sapga_ros.evaluation.evaluator import Evaluator
 from sapga_ros.io.atomic import save_figure
 from sapga_ros.policies.runnable import policy_from_document
 from sapga_ros.training.experiment_report import row_method
-from sapga_ros.training.run_files import stored_runs
+from sapga_ros.training.run_files import run_path, stored_runs
 from sim_nodes.goal import delta_of
 
 
@@ -24,10 +25,14 @@ def _label(s: dict) -> str:
 
 def _runs(out: Path, s: dict) -> tuple[list[tuple[int, dict]], tuple | None]:
     """(seed, final measures) of each of the row's stored runs, and (seed, policy document)
-    of the best (hold fraction, then value; only that policy is kept in memory)."""
+    of the best (hold fraction, then value; only that policy is kept in memory).  A run
+    file of the row without the hold measures is refused, naming the file."""
     rows, best, best_key = [], None, None
     for seed, run in stored_runs(out, s['id'], s['seeds']):
         f = run['final']
+        if 'hold_fraction' not in f:
+            raise DataFileError(f"{run_path(out, s['id'], seed)}: run.final: missing field "
+                                f"'hold_fraction' (summary row #{s['id']} has hold measures)")
         rows.append((seed, f))
         key = (f.get('hold_fraction', 0.0), f.get('policy_value', -math.inf))
         if run.get('policy') is not None and (best_key is None or key > best_key):
@@ -68,7 +73,8 @@ def hold_figures(out: Path, summaries: list[dict]) -> list[str]:
             ax.set_title(f'{_label(s)}: no stored policy', fontsize='small')
             continue
         seed, doc = top
-        policy = policy_from_document(doc, s['problem'], f'run {s["id"]} seed {seed}')
+        policy = policy_from_document(doc, s['problem'],
+                                      f"{run_path(out, s['id'], seed)}: run.policy")
         ep = Evaluator(policy.problem, s['delta']).episode(policy)
         pr = policy.problem
         t = np.arange(len(ep.states)) * pr.dt * pr.substeps

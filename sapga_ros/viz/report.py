@@ -20,7 +20,7 @@ from sapga_ros.io.atomic import save_figure, write_atomic
 from sapga_ros.policies.runnable import policy_from_document
 from sapga_ros.training.experiment_report import count_text, hold_table, row_controls
 from sapga_ros.training.report_files import read_info, read_summary
-from sapga_ros.training.run_files import stored_runs
+from sapga_ros.training.run_files import run_path, stored_runs
 
 FIG5_STEPS = 1_000_000      # MDP steps of each Figure 5 run (SAP-GA and Q-learning), seed 0
 
@@ -131,7 +131,8 @@ def trajectory_figures(out: Path, summaries: list[dict]) -> list[str]:
             continue
         episodes, titles = [], []
         for run, doc in best:
-            policy = policy_from_document(doc, family, f'run seed {run["seed"]}')
+            policy = policy_from_document(
+                doc, family, f"{run_path(out, rows[0]['id'], run['seed'])}: run.policy")
             ep = Evaluator(policy.problem, rows[0]['delta']).episode(policy)
             episodes.append(ep)
             titles.append(f"#{rows[0]['id']} seed {run['seed']}: return {ep.ret:.1f}, "

@@ -26,7 +26,7 @@ from sapga_ros.io.atomic import write_inside
 from sapga_ros.io.jsonfile import dumps
 from sapga_ros.policies.runnable import policy_from_document
 from sapga_ros.training.experiment_report import bootstrap_ci, row_method
-from sapga_ros.training.run_files import stored_runs
+from sapga_ros.training.run_files import run_path, stored_runs
 
 
 @dataclass(frozen=True)
@@ -54,7 +54,8 @@ def _row_points(out: Path, s: dict, profiles: list, settings: CurveSettings,
         doc = run.get('policy')
         if doc is None:
             continue
-        policy = policy_from_document(doc, s['problem'], f"run {s['id']} seed {seed}")
+        policy = policy_from_document(doc, s['problem'],
+                                      f"{run_path(out, s['id'], seed)}: run.policy")
         for p in profiles:
             rows = sweep(policy, s['delta'], p, settings.scales, settings.episodes,
                          settings.seed, settings.replan, 0, settings.jobs)
