@@ -144,6 +144,23 @@ def test_exemplars_lists_plots_and_prunes(trained, tmp_path):
     assert a == b
 
 
+def test_exemplars_plot_finite_extremes_without_a_warning(tmp_path):
+    """Exemplar states at the ends of the float range (1e308, 5e-324) are finite, so the
+    policy is accepted; its plot is drawn and stderr holds only the plot's own line."""
+    doc = {'format': 'sapga-policy/1', 'problem': 'acrobot', 'style': 'state-action',
+           'state_names': ['theta1', 'theta2', 'theta1_dot', 'theta2_dot'],
+           'actions': [-2.0, 0.0, 2.0],
+           'exemplars': [{'state': [1e308, -1e308, 5e-324, 1e308], 'action': 2.0},
+                         {'state': [-1e308, 5e-324, -1e308, -5e-324], 'action': -2.0},
+                         {'state': [5e-324] * 4, 'action': 0.0}]}
+    policy, png = tmp_path / 'extreme.json', tmp_path / 'extreme.png'
+    policy.write_text(json.dumps(doc))
+    r = sapga('exemplars', policy, '--plot', png)
+    assert r.returncode == 0, r.stderr
+    assert r.stderr.splitlines() == [f'plot: {png}'], r.stderr
+    assert png.stat().st_size > 10_000
+
+
 def test_ql_training_writes_an_evaluable_table(tmp_path):
     """``--method ql`` writes a sapga-qtable/1 file that ``sapga eval`` runs."""
     out = tmp_path / 'q.json'

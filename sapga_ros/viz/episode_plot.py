@@ -17,6 +17,7 @@ import numpy as np
 
 from sapga_ros.io.atomic import save_figure_file
 from sapga_ros.recording.episodes import Episode
+from sapga_ros.viz.quiet import quiet_drawing
 from sim_nodes.geometry import drawing, goal_band, goal_states, picture, track
 
 GOAL_COLOR = 'tab:green'
@@ -99,6 +100,7 @@ def episode_figure(ep: Episode, problem: Any, title: str,
     return fig
 
 
+@quiet_drawing()
 def plot_episode(ep: Episode, problem: Any, out_path: str, title: str,
                  goal_delta: float | None = None) -> None:
     """Angles, velocities, command over time and a stroboscopic picture, to a PNG file;

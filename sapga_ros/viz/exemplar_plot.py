@@ -14,6 +14,7 @@ from sapga_ros.io.atomic import save_figure_file
 from sapga_ros.evaluation.state_selector import StateSelector
 from sapga_ros.policies.exemplar import ExemplarPolicy
 from sapga_ros.viz.episode_plot import break_wraps
+from sapga_ros.viz.quiet import quiet_drawing
 
 COLOURS = ('tab:blue', 'tab:grey', 'tab:red', 'tab:green', 'tab:orange')
 
@@ -74,6 +75,7 @@ def _draw_exemplars(ax, policy: ExemplarPolicy, i: int, j: int, sizes: np.ndarra
                        label=f'action {a:g}', alpha=0.8, edgecolors='none')
 
 
+@quiet_drawing()
 def plot_exemplars(policy: ExemplarPolicy, episode, counts: np.ndarray, out: str) -> None:
     """Exemplars and trajectory per coordinate pair (and the policy map of a 2-D problem)."""
     import matplotlib

@@ -16,6 +16,7 @@ from sapga_ros.io.atomic import save_figure
 from sapga_ros.policies.runnable import policy_from_document
 from sapga_ros.training.experiment_report import row_method
 from sapga_ros.training.run_files import run_path, stored_runs
+from sapga_ros.viz.quiet import quiet_drawing
 from sim_nodes.goal import delta_of
 
 
@@ -40,6 +41,7 @@ def _runs(out: Path, s: dict) -> tuple[list[tuple[int, dict]], tuple | None]:
     return rows, best
 
 
+@quiet_drawing()
 def hold_figures(out: Path, summaries: list[dict]) -> list[str]:
     """The two figures for the rows with hold measures; the report's lines."""
     import matplotlib

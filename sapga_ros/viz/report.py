@@ -21,6 +21,7 @@ from sapga_ros.policies.runnable import policy_from_document
 from sapga_ros.training.experiment_report import count_text, hold_table, row_controls
 from sapga_ros.training.report_files import read_info, read_summary
 from sapga_ros.training.run_files import run_path, stored_runs
+from sapga_ros.viz.quiet import quiet_drawing
 
 FIG5_STEPS = 1_000_000      # MDP steps of each Figure 5 run (SAP-GA and Q-learning), seed 0
 
@@ -95,6 +96,7 @@ def _best_runs(out: Path, summary: dict, count: int) -> list[tuple[dict, dict]]:
     return [(r, r['policy']) for r in runs]
 
 
+@quiet_drawing()
 def _trajectory_figure(out: Path, name: str, episodes: list, problem, delta: float,
                        titles: list[str]) -> Path:
     import matplotlib

@@ -6,7 +6,10 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+from sapga_ros.viz.quiet import quiet_drawing
 
+
+@quiet_drawing()
 def curve_figures(curves: dict[str, dict[str, list[tuple]]], out: Path, prefix: str,
                   ylabel: str, note: str) -> list[Path]:
     """``curves[profile][label]`` = [(scale, rate, (low, high) or None), ...]; one figure

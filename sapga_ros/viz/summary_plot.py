@@ -8,7 +8,10 @@ from pathlib import Path
 
 import numpy as np
 
+from sapga_ros.viz.quiet import quiet_drawing
 
+
+@quiet_drawing()
 def plot_summaries(summaries: list[dict], out: Path) -> list[Path]:
     """One figure per problem: best value, delta* and achieved fraction against steps."""
     import matplotlib
