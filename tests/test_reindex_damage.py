@@ -203,3 +203,101 @@ def test_a_killed_bag_keeps_its_messages_when_the_chunk_defining_its_channels_is
     assert cli.main(['bag', 'reindex', str(bag)]) == 1
     others = decodable(intact, places) - decodable(intact, [first])
     assert others and random_access(path) == others
+
+
+def small_bag(tmp_path: Path, killed: bool) -> tuple[Path, Path, bytes]:
+    """A bag of small chunks, finished or SIGKILLed: (bag, its last file, that file's bytes)."""
+    if killed:
+        bag = killed_bag(tmp_path, 'run')
+    else:
+        bag = tmp_path / 'b'
+        write_episodes(bag, 3, 200, chunk_size=1024).close()
+    path = sorted(bag.glob('*.mcap'))[-1]
+    return bag, path, path.read_bytes()
+
+
+def chunk_places(data: bytes) -> list[tuple[int, int, object]]:
+    return [p for p in layout(data) if isinstance(p[2], Chunk)]
+
+
+@pytest.mark.parametrize('killed', [False, True])
+@pytest.mark.parametrize('bit', range(8))
+def test_a_chunk_whose_opcode_byte_is_damaged_keeps_its_messages(tmp_path, capsys, bit,
+                                                                 killed):
+    """One bit of every chunk's opcode byte flipped (0x06 reads as another record kind, a
+    summary record, a private one or no known one): each chunk is recognised by its
+    structure and every message the intact chunks hold is kept; the original is kept."""
+    bag, path, intact = small_bag(tmp_path, killed)
+    places = layout(intact)
+    damaged = bytearray(intact)
+    for start, _, _ in chunk_places(intact):
+        damaged[start] ^= 1 << bit
+    path.write_bytes(bytes(damaged))
+    assert cli.main(['bag', 'reindex', str(bag)]) == 0
+    assert random_access(path) == decodable(intact, places)
+    assert (bag / f'{path.name}.damaged').read_bytes() == bytes(damaged)
+    assert 'opcode byte reads' in ''.join(capsys.readouterr())
+
+
+@pytest.mark.parametrize('killed', [False, True])
+@pytest.mark.parametrize('opcode', [0x0E, 0x86, 0x16])
+def test_a_lost_chunk_behind_a_damaged_opcode_is_counted(tmp_path, capsys, opcode, killed):
+    """A chunk whose opcode byte and contents are both damaged cannot be read: its messages
+    are counted lost per topic (from the message indexes after it), exit 1, the damaged
+    original kept; every other chunk is kept."""
+    bag, path, intact = small_bag(tmp_path, killed)
+    places = layout(intact)
+    victim = chunk_places(intact)[2]
+    damaged = bytearray(intact)
+    damaged[victim[0]] = opcode
+    damaged[(victim[0] + victim[1]) // 2] ^= 0xFF
+    path.write_bytes(bytes(damaged))
+    assert cli.main(['bag', 'reindex', str(bag)]) == 1
+    lost = decodable(intact, places) - decodable(intact, [p for p in places if p != victim])
+    assert lost and random_access(path) == decodable(intact, places) - lost
+    topics = Counter(topic for topic, _, _ in lost.elements())
+    err = ''.join(capsys.readouterr())
+    assert f'{sum(topics.values())} messages lost (' in err, err
+    assert all(f'{t} {n}' in err for t, n in topics.items()), err
+    assert (bag / f'{path.name}.damaged').read_bytes() == bytes(damaged)
+
+
+def test_a_huge_length_field_is_damage_not_a_traceback(tmp_path, capsys):
+    """The top bit of any length field of a chunk record flipped (the record's length, the
+    compression name's, the records'): one line; every message the stream reader still
+    decodes is kept, and exit 1 exactly when some were lost."""
+    write_episodes(tmp_path / 'b', 3, 200, chunk_size=1024).close()
+    path = tmp_path / 'b' / 'b_0.mcap'
+    intact = path.read_bytes()
+    places = layout(intact)
+    start, _, chunk = chunk_places(intact)[1]
+    name = len(chunk.compression)
+    for field_end in (9, 9 + 28 + 4, 9 + 28 + 4 + name + 8):      # each u32/u64's top byte
+        work = tmp_path / f'f{field_end}'
+        shutil.copytree(tmp_path / 'b', work)
+        damaged = bytearray(intact)
+        damaged[start + field_end - 1] ^= 0x80
+        (work / 'b_0.mcap').write_bytes(bytes(damaged))
+        code = cli.main(['bag', 'reindex', str(work)])
+        got, recorded = random_access(work / 'b_0.mcap'), decodable(intact, places)
+        assert not decodable(bytes(damaged), places) - got and not got - recorded
+        assert code == (0 if got == recorded else 1), field_end
+        err = ''.join(capsys.readouterr())
+        assert 'Traceback' not in err and 'Error' not in err, err
+
+
+@pytest.mark.parametrize('opcode', [0x0E, 0x86])
+def test_reading_names_a_chunk_skipped_behind_a_damaged_opcode(tmp_path, opcode):
+    """`sapga inspect`'s stream reader cannot read a chunk whose opcode byte is damaged; it
+    calls the file incomplete and names the byte instead of skipping it in silence."""
+    from sapga_ros.recording.reader import read_recording
+
+    write_episodes(tmp_path / 'b', 3, 200, chunk_size=1024).close()
+    path = tmp_path / 'b' / 'b_0.mcap'
+    data = bytearray(path.read_bytes())
+    start = chunk_places(bytes(data))[2][0]
+    data[start] = opcode
+    path.write_bytes(bytes(data))
+    rec = read_recording(tmp_path / 'b')
+    assert not rec.complete and f'byte {start}' in rec.error, rec.error
+    assert 'where a chunk was expected' in rec.error

@@ -35,9 +35,13 @@ KNOWN_OPCODES = {int(op) for op in Opcode}
 
 
 class _Exact(io.BytesIO):
-    """Bytes that refuse a short read: a field longer than its record is damage."""
+    """Bytes that refuse a short read: a field longer than its record is damage.  A length
+    is checked against the bytes left before anything is read or allocated, so a length
+    field of any value (up to 2**64 - 1) is damage, never an overflow."""
 
     def read(self, n: int | None = -1) -> bytes:
+        if n is not None and n > len(self.getbuffer()) - self.tell():
+            raise EndOfFile()
         data = super().read(n)
         if n is not None and n >= 0 and len(data) != n:
             raise EndOfFile()
@@ -64,7 +68,7 @@ def parse_at(mem: Any, pos: int, size: int) -> tuple[Any, int]:
             record = Message.read(stream, length)
         else:
             record = PARSERS[opcode].read(stream)
-    except (EndOfFile, UnicodeDecodeError, struct.error) as exc:
+    except (EndOfFile, UnicodeDecodeError, struct.error, OverflowError) as exc:
         raise ValueError(f'damaged {Opcode(opcode).name.lower()} record') from exc
     if content.tell() != length:
         raise ValueError(f'{Opcode(opcode).name.lower()} record longer than its fields')
@@ -87,7 +91,7 @@ def chunk_by_fields(mem: Any, pos: int, size: int) -> tuple[Chunk, int]:
     content = _Exact(mem[pos + 9:end])
     try:
         return Chunk.read(ReadDataStream(content)), end
-    except (EndOfFile, UnicodeDecodeError, struct.error) as exc:
+    except (EndOfFile, UnicodeDecodeError, struct.error, OverflowError) as exc:
         raise ValueError('damaged chunk record') from exc
 
 
@@ -134,14 +138,14 @@ def chains(mem: Any, pos: int, size: int) -> bool:
 
 
 def parse_span(mem: Any, pos: int, end: int) -> Any:
-    """The record scan found intact at ``pos``..``end``, however its lengths were read."""
-    if mem[pos] != Opcode.CHUNK:
-        return parse_at(mem, pos, len(mem))[0]
+    """The record scan found intact at ``pos``..``end``, however its lengths (or, for a
+    chunk, its opcode byte) were read."""
     for read in (parse_at, chunk_by_fields, chunk_by_length):
         try:
             record, stop = read(mem, pos, len(mem))
         except ValueError:
             continue
-        if stop == end:
+        if stop == end and record is not None and (
+                read is not parse_at or mem[pos] != Opcode.CHUNK or isinstance(record, Chunk)):
             return record
-    raise McapError(f'byte {pos}: the chunk found intact does not read again')
+    raise McapError(f'byte {pos}: the record found intact does not read again')

@@ -26,7 +26,9 @@ from pathlib import Path, PurePath
 from typing import Any, BinaryIO, Callable, Collection, NamedTuple
 
 from mcap.exceptions import EndOfFile, InvalidMagic
-from mcap.records import Channel, Chunk, Footer, Header, Message, Metadata, Schema
+from mcap.records import (AttachmentIndex, Channel, Chunk, ChunkIndex, DataEnd, Footer, Header,
+                          Message, MessageIndex, Metadata, MetadataIndex, Schema, Statistics,
+                          SummaryOffset)
 from mcap.stream_reader import StreamReader
 
 from sapga_ros.errors import McapError
@@ -37,6 +39,7 @@ from sapga_ros.recording.schemas import full_type_name
 from sapga_ros.recording.writer import SAPGA_RECORD
 
 MCAP_MAGIC = b'\x89MCAP0\r\n'
+_ELSEWHERE = (ChunkIndex, AttachmentIndex, Statistics, MetadataIndex, SummaryOffset, Footer)
 _SPLIT_INDEX = re.compile(r'_(\d+)\.mcap$')
 
 
@@ -150,8 +153,18 @@ def read_file(path: Path, rec: Recording, budget: Budget, sink: Sink | None = No
         schemas: dict[int, Schema] = {}
         good = len(MCAP_MAGIC)              # end of the last record read intact [bytes]
         reader = StreamReader(f, emit_chunks=True, record_size_limit=max(size, 1))
+        after_chunk, data = False, True     # the last record a chunk; before DataEnd
         try:
             for record in reader.records:
+                if data and (isinstance(record, _ELSEWHERE) or (
+                        isinstance(record, MessageIndex) and not (
+                            after_chunk and f.tell() - good == 15 + 16 * len(record.records)))):
+                    out.error = out.error or (
+                        f'{path}: byte {good}: {type(record).__name__} record where a chunk '
+                        'was expected (a damaged record opcode?); that chunk\'s messages are '
+                        'lost here (`sapga bag reindex` recovers or counts them)')
+                after_chunk = isinstance(record, (Chunk, MessageIndex))
+                data = data and not isinstance(record, DataEnd)
                 try:
                     records = (chunk_records(record, budget, f'{path}: byte {good}')
                                if isinstance(record, Chunk) else [record])

@@ -9,6 +9,13 @@ a search for the next record that proves itself, byte by byte: a chunk that deco
 to its size and CRC, or a metadata or message index record whose end is the start of
 another record.
 So one damaged chunk costs its own messages only, never those of the chunks after it.
+A record that does not read as what its opcode says, or whose kind has no place in the data
+section (a summary record, a footer, a private record), is first read as a chunk: a chunk
+whose opcode byte (or a length field) is damaged but whose contents decompress to their
+size and CRC is kept.  Where that fails, the message indexes that follow it (a chunk's,
+which no other record has before it) or, in a finished file, the summary's chunk indexes say
+that a chunk was lost there and what it held; a private record neither points to is skipped.
+Every length field is checked against the bytes left before it is used.
 
 The message indexes that follow a lost chunk say how many messages it held, per channel;
 the loss is reported per topic (``Scan.lost``), or as unknown when they are lost too.  The
@@ -29,6 +36,7 @@ from dataclasses import dataclass, field
 from typing import Any, Iterator
 
 from mcap.opcode import Opcode
+from mcap.reader import make_reader
 from mcap.records import (Channel, Chunk, DataEnd, Footer, Header, Message, MessageIndex,
                           Metadata, Schema)
 
@@ -39,6 +47,8 @@ from sapga_ros.recording.mcap_records import (CUT_SHORT, MAGIC, chains, chunk_by
 
 _SYNC = (Opcode.CHUNK, Opcode.METADATA, Opcode.MESSAGE_INDEX)    # records that prove a resync
 _DATA = (Header, Schema, Channel, Message, Metadata)
+_ELSEWHERE = {Opcode.HEADER, Opcode.FOOTER, Opcode.CHUNK_INDEX, Opcode.ATTACHMENT_INDEX,
+              Opcode.STATISTICS, Opcode.METADATA_INDEX, Opcode.SUMMARY_OFFSET}
 
 
 @dataclass
@@ -66,6 +76,7 @@ class Scan:
     per_channel: dict[int, int] = field(default_factory=dict)   # intact messages
     compression: str = ''
     footer: bool = False
+    skipped: list[tuple[int, int]] = field(default_factory=list)   # unread data records
 
     def topic(self, channel_id: int) -> str:
         channel = self.channels.get(channel_id)
@@ -134,6 +145,8 @@ class _Walk:
         self.scan, self.mem, self.budget = scan, mem, budget
         self.open: Damage | None = None     # the damage whose message indexes may follow
         self.backups: list[Metadata] = []   # sapga_channel records
+        self.after_chunk = False            # the last record was a chunk (or its indexes)
+        self.skipped: tuple[int, int] | None = None    # the record skipped last, unread
 
     def run(self) -> None:
         scan, mem, size = self.scan, self.mem, self.scan.size
@@ -145,15 +158,22 @@ class _Walk:
             try:
                 record, end = parse_at(mem, pos, size)
             except ValueError as exc:
-                fixed = self._misstated(pos) if mem[pos] == Opcode.CHUNK and data else None
+                fixed = self._as_chunk(pos) if data else None
                 pos = fixed if fixed is not None else self._damaged(pos, str(exc))
+                self.after_chunk = fixed is not None
                 continue
-            if isinstance(record, Chunk) and data:
+            if data and (record is None or isinstance(record, Footer)):
+                fixed = self._as_chunk(pos)     # a chunk whose opcode byte is damaged?
+                if fixed is not None:
+                    pos, self.after_chunk = fixed, True
+                    continue
+                self._stray(pos, end)
+                pos = end
+                continue
+            elif isinstance(record, Chunk) and data:
                 self._chunk(record, pos, end)
             elif isinstance(record, MessageIndex):
-                if self.open is not None:
-                    self.open.counted = True
-                    self.open.lost[record.channel_id] = len(record.records)
+                self._index(record, pos)
             elif isinstance(record, (Schema, Channel)):
                 self._define(record)
                 if data:
@@ -170,6 +190,9 @@ class _Walk:
                 data = False
             elif isinstance(record, Footer):
                 scan.footer = True
+            if not isinstance(record, MessageIndex):
+                self.after_chunk = isinstance(record, Chunk) and data
+                self.skipped = None
             pos = end
         if pos is not None and pos < size and not (scan.footer and size - pos == len(MAGIC)):
             self.scan.damage.append(Damage(pos, size, CUT_SHORT))
@@ -205,9 +228,14 @@ class _Walk:
             elif isinstance(r, Message):
                 self.scan.count(r)
 
-    def _misstated(self, pos: int) -> int | None:
-        """A chunk whose contents are whole behind a wrong record length: read by its
-        fields, it is kept (and the file rewritten); where reading goes on, or None."""
+    def _as_chunk(self, pos: int) -> int | None:
+        """The record at ``pos`` that did not read as what its opcode says (or is of a kind
+        that has no place in the data section) read as a chunk: a chunk whose record length
+        or opcode byte is wrong but whose contents decompress and check is kept (and the
+        file rewritten); where reading goes on, or None."""
+        opcode = self.mem[pos]
+        why = ('a wrong length field in a chunk record' if opcode == Opcode.CHUNK else
+               f'a chunk record whose opcode byte reads {opcode:#04x}')
         for read in (chunk_by_fields, chunk_by_length):
             try:
                 chunk, end = read(self.mem, pos, self.scan.size)
@@ -220,10 +248,43 @@ class _Walk:
                 self.open = None
                 self.scan.spans = [s for s in self.scan.spans if s[0] != pos]
                 continue
-            self.scan.damage.append(Damage(pos, pos + 9 + 28, 'a wrong length field in a '
-                                           'chunk record; its messages are kept', counted=True))
+            self.scan.damage.append(Damage(pos, pos + 9 + 28, f'{why}; its messages are '
+                                           'kept', counted=True))
             return end
         return None
+
+    def _stray(self, pos: int, end: int) -> None:
+        """A record the data section has no use for, not a chunk either: a summary record
+        or footer there is damage (a chunk's opcode, most likely: the message indexes after
+        it count what it held); a private record or attachment is skipped, unless message
+        indexes follow it (``_index``) or the summary indexes a chunk at it."""
+        opcode = self.mem[pos]
+        if opcode in _ELSEWHERE:
+            self.open = Damage(pos, end, f'a record of opcode {opcode:#04x} inside the data '
+                               'section (a damaged opcode byte?)')
+            self.scan.damage.append(self.open)
+            self.after_chunk = True         # its message indexes may follow
+        else:
+            self.skipped = (pos, end)
+            self.scan.skipped.append((pos, end))
+            self.after_chunk = False
+
+    def _index(self, record: MessageIndex, pos: int) -> None:
+        """A message index: it counts the messages of the chunk before it, lost if that
+        chunk was (or if there is no chunk before it: a chunk whose opcode byte is
+        damaged was skipped as another record)."""
+        if self.open is None and not self.after_chunk:
+            start, end = self.skipped or (pos, pos)
+            if self.skipped in self.scan.skipped:
+                self.scan.skipped.remove(self.skipped)
+            self.open = Damage(start, end, 'message indexes of a chunk that is not there (a '
+                               'damaged opcode byte?)')
+            self.scan.damage.append(self.open)
+            self.skipped = None
+            self.after_chunk = True
+        if self.open is not None:
+            self.open.counted = True
+            self.open.lost[record.channel_id] = len(record.records)
 
     def _damaged(self, pos: int, why: str) -> int | None:
         """Record damage from ``pos``; where reading resumes (None: nowhere)."""
@@ -243,12 +304,40 @@ def _mapped(f: Any) -> Any:
     return mmap.mmap(f.fileno(), size, access=mmap.ACCESS_READ) if size else b''
 
 
+def _indexed_chunks(f: Any, found: Scan, mem: Any) -> None:
+    """Damage where the summary of a finished file indexes a chunk at a record the walk
+    skipped as another kind (its opcode byte damaged, no message indexes after it)."""
+    try:
+        f.seek(0)
+        summary = make_reader(f).get_summary()
+        index = {c.chunk_start_offset: c for c in summary.chunk_indexes} if summary else {}
+    except Exception:  # noqa: BLE001 - a damaged summary indexes nothing
+        return
+    for pos, end in found.skipped:
+        if pos not in index:
+            continue
+        d = Damage(pos, end, 'a chunk the summary indexes, its opcode byte damaged',
+                   counted=True)
+        for cid, at in index[pos].message_index_offsets.items():
+            try:
+                record = parse_at(mem, at, found.size)[0]
+            except ValueError:
+                record = None
+            if isinstance(record, MessageIndex) and record.channel_id == cid:
+                d.lost[cid] = len(record.records)
+            else:
+                d.counted = False
+        found.damage.append(d)
+
+
 def scan(f: Any, path: str, budget: Budget) -> Scan:
     """Find the intact records of the open binary file ``f`` (named ``path``)."""
     mem = _mapped(f)
     try:
         result = Scan(path=path, size=len(mem))
         _Walk(result, mem, budget).run()
+        if result.footer and result.skipped:
+            _indexed_chunks(f, result, mem)
         return result
     finally:
         if isinstance(mem, mmap.mmap):
