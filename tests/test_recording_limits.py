@@ -17,6 +17,8 @@ import zstandard
 from mcap.data_stream import RecordBuilder
 from mcap.reader import make_reader
 from mcap.records import Channel, Chunk, Header, Message, Schema
+from mcap.writer import CompressionType
+from mcap.writer import Writer as McapWriter
 
 from process_helpers import sapga_peak_rss
 from sapga_ros.errors import McapError
@@ -122,3 +124,69 @@ def test_an_output_directory_that_is_a_device_is_named_as_one(tmp_path):
     (tmp_path / 'file').write_text('x')
     with pytest.raises(McapError, match='a file, not a directory'):
         BagWriter(tmp_path / 'file' / 'bag')
+
+
+def test_a_bag_the_writer_writes_compressed_beyond_any_ratio_reads_whole(tmp_path):
+    """Three blank 30 MiB mono8 images in 16 MiB chunks (the writer's limits) compress to
+    some 13 KB: inspect reads all three, the bag complete, as reindex does."""
+    from sapga_ros.recording.inspect import inspect_path
+
+    n = 30 << 20
+    image = TYPES.types['sensor_msgs/msg/Image']
+    header = TYPES.types['std_msgs/msg/Header']
+    stamp = TYPES.types['builtin_interfaces/msg/Time'](0, 0)
+    cdr = bytes(TYPES.serialize_cdr(image(header(stamp, 'c'), 1, n, 'mono8', 0, n,
+                                          np.zeros(n, dtype=np.uint8)),
+                                    'sensor_msgs/msg/Image'))
+    bag = tmp_path / 'b'
+    with BagWriter(bag, chunk_size=MAX_CHUNK_SIZE, custom_data={'problem': 'acrobot'}) as w:
+        w.add_topic(TopicInfo('/image', 'sensor_msgs/msg/Image', [qos_profile()],
+                              type_hash('sensor_msgs/msg/Image')))
+        for k in range(3):
+            w.write('/image', cdr, (k + 1) * 10**9, (k + 1) * 10**9)
+    del cdr
+    size = sum(p.stat().st_size for p in bag.glob('*.mcap'))
+    assert 3 * n > 1000 * size
+    summary, _, _ = inspect_path(str(bag))
+    assert summary['complete'] and summary['message_count'] == 3, summary['error']
+    assert reindex(bag).messages == 3
+
+
+def joint_names_bomb(path, names: int, messages: int) -> None:
+    """An MCAP file of zstd chunks of JointStates naming ``names`` two-letter joints each:
+    some 2 MB on disk (mostly an uncompressed metadata record), some 7 times their CDR bytes
+    when decoded."""
+    body = bytearray(b'\x00\x01\x00\x00') + (1).to_bytes(4, 'little') + bytes(4)
+    body += (8).to_bytes(4, 'little') + b'acrobot\x00' + names.to_bytes(4, 'little')
+    body += ((3).to_bytes(4, 'little') + b'ab\x00\x00') * names + bytes(12)
+    with open(path, 'wb') as f:
+        w = McapWriter(f, chunk_size=48 << 20, compression=CompressionType.ZSTD)
+        w.start('ros2', 'bomb')
+        w.add_metadata('sapga', {'problem': 'acrobot'})
+        w.add_metadata('pad', {'x': 'ab' * 900_000})      # a file size no ratio refuses
+        s = w.register_schema('sensor_msgs/msg/JointState', 'ros2msg',
+                              message_definition('sensor_msgs/msg/JointState').encode())
+        c = w.register_channel('/joint_states', 'cdr', s)
+        for k in range(messages):
+            w.add_message(c, k * 1000, bytes(body), k * 1000)
+        w.finish()
+
+
+def test_inspect_memory_is_bounded_for_messages_that_decode_large(tmp_path):
+    """170 JointStates of 100 000 joint names (136 MB of CDR in a file of some 2 MB): inspect
+    decodes each alone and keeps none, within 200 MiB above a small bag's peak (the chunks'
+    bound); a message above 1 MiB is not decoded, its topic said undecodable."""
+    write_episodes(tmp_path / 'small', 1, 5).close()
+    joint_names_bomb(tmp_path / 'bomb.mcap', 100_000, 170)
+    assert (tmp_path / 'bomb.mcap').stat().st_size < 4 << 20
+    rc, err, small = sapga_peak_rss(['inspect', str(tmp_path / 'small')])
+    assert rc == 0, err
+    rc, err, peak = sapga_peak_rss(['inspect', str(tmp_path / 'bomb.mcap')])
+    assert rc == 0 and 'Traceback' not in err, err
+    assert peak - small < 200, (peak, small)     # MiB
+    from sapga_ros.recording.inspect import inspect_path
+
+    joint_names_bomb(tmp_path / 'big.mcap', 200_000, 2)
+    summary, _, _ = inspect_path(str(tmp_path / 'big.mcap'))
+    assert summary['message_count'] == 2
+    assert 'more than the 1048576 decoded' in summary['undecodable_topics']['/joint_states']

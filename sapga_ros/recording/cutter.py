@@ -21,6 +21,7 @@ and ``overflow`` says where it stopped (one line), the episodes so far are still
 """
 from __future__ import annotations
 
+import dataclasses
 import heapq
 from typing import Any, Callable
 
@@ -60,6 +61,7 @@ class Cutter:
     def feed(self, m: DecodedMessage) -> None:
         if self.roles.get(m.topic) not in EPISODE_ROLES or self.overflow:
             return
+        m = dataclasses.replace(m, value=self._reduce(m))
         heapq.heappush(self._heap, (m.log_time, m.index, m))
         if len(self._heap) > self.window:
             self._take(heapq.heappop(self._heap)[2])
@@ -94,15 +96,31 @@ class Cutter:
             self.kept -= old.kept
             self.done(old.settled())
 
+    def _reduce(self, m: DecodedMessage) -> Any:
+        """What the cutting needs of a decoded message, taken before the message waits in
+        the window: a few numbers (an event's fields), never the decoded message, whose
+        strings and lists can take many times the bytes of its CDR."""
+        role, v = self.roles[m.topic], m.value
+        if role == 'event':
+            return parse_event(getattr(v, 'data', None))
+        if role == 'state':
+            return stamp_ns(v), (self.robot.state(v) if self.robot is not None else
+                                 state_vector(v, self.problem) if self.problem is not None
+                                 else None)
+        if role == 'command_stamped':
+            return stamped_command(v, self.problem)
+        if role == 'effort':        # a robot's effort array, held like ``command``
+            return self.robot.action(v.data) if self.robot is not None else None
+        return finite(v.data)
+
     def _take(self, m: DecodedMessage) -> None:
+        """Cut one message, reduced (``_reduce``), in receive order."""
         role = self.roles[m.topic]
         if role == 'event':
             self._event(m)
             return
         if role == 'state':
-            stamp = stamp_ns(m.value)
-            s = (self.robot.state(m.value) if self.robot is not None else
-                 state_vector(m.value, self.problem) if self.problem is not None else None)
+            stamp, s = m.value
             home = next((ep for ep in reversed(self._open[-2:]) if ep.owns(stamp)), None)
             if home is None and not self._open:
                 home = self._current()
@@ -115,21 +133,16 @@ class Cutter:
                 self._keep(self._open[-1], KEPT_STATE, m)
             return
         if role == 'command_stamped':
-            stamp, value = stamped_command(m.value, self.problem)
+            stamp, value = m.value
             ep = self._home(lambda e: e.owns(stamp) and (e.end_ns is None or stamp < e.end_ns))
             if ep is not None and value is not None:
                 ep.commands.append((stamp, value + 0.0))
                 self._keep(ep, KEPT_VALUE, m)
             return
         ep = self._home(lambda e: e.sent_within(sent_ns(m)))
-        if ep is None:
+        value = m.value
+        if ep is None or value is None:
             return              # between episodes, or answering a final state: none's
-        if role == 'effort':        # a robot's effort array, held like ``command``
-            value = self.robot.action(m.value.data) if self.robot is not None else None
-        else:
-            value = finite(m.value.data)
-        if value is None:
-            return
         if role == 'reward':
             ep.rewards.append(value)
         elif role in ('command', 'effort'):     # held from the latest state on
@@ -149,7 +162,7 @@ class Cutter:
         return home
 
     def _event(self, m: DecodedMessage) -> None:
-        ev = parse_event(getattr(m.value, 'data', None))
+        ev = m.value
         if ev is None:
             self.bad_events += 1
             return

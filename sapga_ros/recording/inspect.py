@@ -30,6 +30,7 @@ from sapga_ros.recording.reader import (Decoder, RecordedMessage, Recording, Sin
 from sapga_ros.recording.robot import RobotLayout
 from sapga_ros.recording.schemas import cdr_string
 
+EPISODE_MESSAGE_BYTES = 1 << 20     # [bytes] of CDR: a robot's JointState takes some 100s
 Replay = Callable[[Sink], None]      # pushes every message of the recording, in file order
 
 
@@ -147,7 +148,8 @@ def summarize(rec: Recording, scan: Scan | None = None, replay: Replay | None = 
     robot = _robot(scan, roles, problem)
     cutter = Cutter(roles, problem, done, limit=BUDGET_FLOOR + BUDGET_RATIO * rec.size,
                     robot=robot)
-    decode = Decoder(rec.topics, [t for t, r in roles.items() if r in EPISODE_ROLES])
+    decode = Decoder(rec.topics, [t for t, r in roles.items() if r in EPISODE_ROLES],
+                     max_bytes=EPISODE_MESSAGE_BYTES)
     index = [0]
 
     def sink(m: RecordedMessage) -> None:

@@ -11,10 +11,12 @@ line) when nothing at all can be read.
 
 ``read_recording(path, sink)`` streams instead: each message goes to ``sink`` as it is read
 and none is kept, so a recording of any number of messages is read in the memory of one
-chunk (``MAX_CHUNK_BYTES``); decompression stays bounded by the file size (a bomb is still
-refused with one line), the messages' count is not.  ``Decoder`` decodes them one at a
-time (``decode_messages`` a whole list).  The module stays over 300 lines so that reading,
-streaming and decoding share one definition of a message.
+chunk (``MAX_CHUNK_BYTES``, the limit the writer keeps to): whatever the writer wrote is
+read, however well it compresses, and a bomb costs no more memory than one chunk.  Reading
+that keeps the messages stays within ``Budget`` (a multiple of the file size): a bag beyond
+it is read by streaming.  ``Decoder`` decodes them one at a time (``decode_messages`` a
+whole list), within ``max_bytes`` a message if given.  The module stays over 300 lines so that
+reading, streaming and decoding share one definition of a message.
 """
 from __future__ import annotations
 
@@ -257,7 +259,8 @@ def read_recording(path: str | os.PathLike, sink: Sink | None = None) -> Recordi
     p = Path(path)
     rec = Recording(path=str(p))
     files = bag_files(p, rec) if p.is_dir() else [p]
-    budget = Budget(sum(f.stat().st_size for f in files if f.is_file()), keeps=sink is None)
+    budget = (Budget(sum(f.stat().st_size for f in files if f.is_file())) if sink is None
+              else Budget.streaming())
     for file in files:
         try:
             rec.files.append(read_file(file, rec, budget, sink))
@@ -294,11 +297,12 @@ class Decoder:
     """Decodes the ros2msg/cdr messages of ``topics`` (default all) one at a time; a broken
     schema or message spoils its topic only (``failed``: {topic: what failed})."""
 
-    def __init__(self, known: dict[str, TopicRecord], topics: Collection[str] | None = None
-                 ) -> None:
+    def __init__(self, known: dict[str, TopicRecord], topics: Collection[str] | None = None,
+                 max_bytes: int | None = None) -> None:
         from mcap_ros2.decoder import DecoderFactory
 
         self.known, self.topics = known, topics
+        self.max_bytes = max_bytes      # a larger message spoils its topic, undecoded
         self.factory = DecoderFactory()
         self.decoders: dict[str, Any] = {}
         self.failed: dict[str, str] = {}
@@ -319,6 +323,10 @@ class Decoder:
                 self.failed[msg.topic] = (f'no ros2msg/cdr decoder (message encoding '
                                           f'{info.message_encoding!r})')
                 return None
+        if self.max_bytes is not None and len(msg.data) > self.max_bytes:
+            self.failed[msg.topic] = (f'message {i} holds {len(msg.data)} bytes, more than '
+                                      f'the {self.max_bytes} decoded of one message')
+            return None
         try:
             value = self.decoders[msg.topic](msg.data)
         except Exception as exc:  # noqa: BLE001 - one malformed message spoils one topic only
