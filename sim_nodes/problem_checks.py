@@ -8,7 +8,8 @@ and the field, never a crash in a node or a run that cannot work.
 * ``ros``: ``joints`` (distinct names covering the state layout and the actuator),
   ``frame_id``, ``topics`` (known roles, valid ROS 2 topic names) and ``qos`` (known
   choices, a bounded depth);
-* physics: the parameters the model lists in ``POSITIVE`` are > 0, and a trial of two MDP
+* physics: the parameters the model lists in ``POSITIVE`` are > 0, those in ``ORDERED``
+  increase (a track's ends), and a trial of two MDP
   steps with every action from the initial state gives finite states and rewards (zero
   masses give nan, which would otherwise read as a goal reached).
 """
@@ -136,6 +137,11 @@ def check_physics(problem: Any) -> None:
         value = problem.physics.get(name)
         if value is not None and not value > 0:
             raise ConfigError(f'{problem.source}: physics.{name}: must be > 0, got {value}')
+    ordered = [(name, problem.physics.get(name)) for name in getattr(module, 'ORDERED', ())]
+    for (low, a), (high, b) in zip(ordered, ordered[1:]):
+        if a is not None and b is not None and not a < b:
+            raise ConfigError(f'{problem.source}: physics.{low} ({a}) must be below '
+                              f'physics.{high} ({b})')
     params = problem.params()
     for action in problem.actions:
         s = problem.initial_state.copy()

@@ -167,6 +167,17 @@ def test_misuse_is_refused():
             CmaesParams(**kwargs)
 
 
+def test_a_covariance_that_cannot_fit_in_memory_is_refused_before_it_is_made():
+    """N = L (D + 1) genes need some 4 N^2 doubles: past 8 GiB one line naming the settings,
+    before pycma allocates anything (it would raise MemoryError or take the machine)."""
+    problem = load_problem('acrobot')
+    for params in (CmaesParams(exemplars=100_000, popsize=1000), CmaesParams(exemplars=4000)):
+        with pytest.raises(ConfigError, match=r'^CMA-ES: exemplars \d+ make N = \d+ genes on '
+                                              r'acrobot; .* GiB, more than the 8 GiB'):
+            Cmaes.create(problem, params, 0)
+    assert Cmaes.create(problem, CmaesParams(exemplars=600), 0).es.N == 3000
+
+
 @pytest.mark.parametrize('problem_name', ['acrobot', 'pdip'])
 def test_a_seed_gives_the_same_strategy_whatever_the_blas_thread_count(problem_name):
     """OpenBLAS's sums depend on how many threads it uses (by default the machine's cores);

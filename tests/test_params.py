@@ -95,7 +95,11 @@ def test_populations_that_cannot_fit_in_memory_are_refused_up_front(ros, tmp_pat
     """A million children: one line, exit 2, before anything is allocated, the same in the
     CLI, the trainer node (-p and params file) and the config dataclass."""
     line = memory_problem(100, 1_000_000, 100)
-    assert line.startswith('n_pop 100 x (n_child 1000000 + 1) x l_max 100 exemplars need')
+    assert line.startswith('n_pop 100 x (n_child 1000000 + 1) policies of up to l_max 100 '
+                           'exemplars need')
+    # a policy costs memory of its own, however few its exemplars
+    assert memory_problem(1_000_000, 1, 30) is not None
+    assert memory_problem(100, 10, 100) is None and memory_problem(2000, 10, 100) is None
     with pytest.raises(ConfigError) as refused:
         SapgaParams(n_child=1_000_000)
     assert str(refused.value) == line

@@ -89,6 +89,18 @@ def test_values_that_cannot_work_are_refused(section, key, value, word):
     assert word in str(err.value)
 
 
+@pytest.mark.parametrize('x_min,x_max', [(0.5, 0.5), (0.6, 0.5), (-1.2, -1.3)])
+def test_a_track_whose_ends_do_not_increase_is_refused(x_min, x_max):
+    """Mountain car's x_min must lie below x_max (a zero-width track trained before)."""
+    doc = yaml.safe_load((config_dir() / 'mountain_car.yaml').read_text())
+    doc['physics'].update(x_min=x_min, x_max=x_max)
+    with pytest.raises(ConfigError, match=r'^mountain_car\.yaml: physics\.x_min \(.*\) must be '
+                                          r'below physics\.x_max'):
+        parse_problem(doc, 'mountain_car.yaml')
+    doc['physics'].update(x_min=-1.2, x_max=0.5)
+    assert parse_problem(doc, 'mountain_car.yaml').physics['x_min'] == -1.2
+
+
 def test_actions_are_bounded_and_any_count_is_accepted():
     doc = _acrobot()
     doc['actions'] = [float(a) for a in range(1000)]

@@ -72,6 +72,24 @@ class CmaesParams:
             raise ConfigError('popsize: expected 0 (pycma\'s default) or at least 2, got 1')
 
 
+# pycma keeps about three N x N matrices (measured: 3.0 N^2 doubles for N = 2,000 and 4,000);
+# four leave room for its eigendecomposition, and each of lambda candidates N more doubles
+MATRICES = 4
+MAX_HELD_BYTES = 8 << 30                   # [bytes] as the GA's population may need
+
+
+def memory_problem(problem: Problem, params: CmaesParams) -> str | None:
+    """The one line refusing a strategy whose covariance cannot fit in memory, or None."""
+    n = genes(problem, params.exemplars)
+    lam = params.popsize or 4 + int(3 * math.log(n))
+    held = 8 * n * (MATRICES * n + 4 * lam)
+    if held <= MAX_HELD_BYTES:
+        return None
+    return (f'CMA-ES: exemplars {params.exemplars} make N = {n} genes on {problem.name}; its '
+            f'covariance and {lam} candidates need about {held / (1 << 30):,.0f} GiB, more '
+            f'than the {MAX_HELD_BYTES >> 30} GiB a run may hold: lower exemplars or popsize')
+
+
 def genes(problem: Problem, exemplars: int) -> int:
     """N, the length of a candidate vector: L (D + 1)."""
     return exemplars * (problem.dim + 1)
@@ -103,6 +121,9 @@ class Cmaes(Optimizer):
     method = 'cmaes'
 
     def __init__(self, problem: Problem, params: CmaesParams, seed: int) -> None:
+        reason = memory_problem(problem, params)
+        if reason:
+            raise ConfigError(reason)
         self.problem = problem
         self.params = params
         self.seed = int(seed)

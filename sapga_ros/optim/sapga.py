@@ -44,6 +44,9 @@ COUNT = 1_000_000                          # most policies, children or exemplar
 # Memory of a generation: about 100 bytes per n_pop x (n_child + 1) x l_max exemplars at the
 # peak of ask() and the batch evaluation (measured on pdip, D = 6: 101 bytes); 128 leaves room.
 EXEMPLAR_BYTES = 128
+# and about 1.4 kB a policy whatever its exemplars (its objects and arrays: measured with one
+# or two exemplars a policy, 40,000 policies, acrobot); 2,048 leaves room
+POLICY_BYTES = 2048
 MAX_HELD_BYTES = 8 << 30                   # [bytes] a run's population may need, at most
 VARIANTS = {                               # name -> what changes from the paper's algorithm
     'paper': 'the paper\'s SAP-GA: the family member of best value survives (a parent '
@@ -86,12 +89,12 @@ class SapgaParams:
 
 def memory_problem(n_pop: int, n_child: int, l_max: int) -> str | None:
     """The one line refusing a population whose exemplars cannot fit in memory, or None."""
-    held = n_pop * (n_child + 1) * l_max * EXEMPLAR_BYTES
+    held = n_pop * (n_child + 1) * (l_max * EXEMPLAR_BYTES + POLICY_BYTES)
     if held <= MAX_HELD_BYTES:
         return None
-    return (f'n_pop {n_pop} x (n_child {n_child} + 1) x l_max {l_max} exemplars need about '
-            f'{held / (1 << 30):,.0f} GiB, more than the {MAX_HELD_BYTES >> 30} GiB a run may '
-            'hold: lower n_pop, n_child or l_max')
+    return (f'n_pop {n_pop} x (n_child {n_child} + 1) policies of up to l_max {l_max} '
+            f'exemplars need about {held / (1 << 30):,.0f} GiB, more than the '
+            f'{MAX_HELD_BYTES >> 30} GiB a run may hold: lower n_pop, n_child or l_max')
 
 
 @dataclass

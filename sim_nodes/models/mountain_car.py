@@ -20,6 +20,8 @@ from sim_nodes.models.trig import cos
 PARAMS = ('power', 'gravity', 'x_min', 'x_max', 'v_max')
 # physics parameters that must be > 0 (the problem YAML is refused otherwise)
 POSITIVE = ('v_max',)
+# physics parameters that must be in increasing order (the problem YAML is refused otherwise)
+ORDERED = ('x_min', 'x_max')
 DT, SUBSTEPS, POWER, GRAVITY, X_MIN, X_MAX, V_MAX = range(7)
 
 
