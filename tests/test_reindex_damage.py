@@ -18,8 +18,9 @@ from pathlib import Path
 
 import pytest
 from mcap.reader import make_reader
-from mcap.records import Channel, Chunk, Message
+from mcap.records import Attachment, Channel, Chunk, Message, Metadata
 from mcap.stream_reader import StreamReader
+from mcap.writer import CompressionType, Writer
 
 from sapga_ros.cli import main as cli
 from test_recording_files import MAGIC, killed_bag, write_episodes
@@ -301,3 +302,130 @@ def test_reading_names_a_chunk_skipped_behind_a_damaged_opcode(tmp_path, opcode)
     rec = read_recording(tmp_path / 'b')
     assert not rec.complete and f'byte {start}' in rec.error, rec.error
     assert 'where a chunk was expected' in rec.error
+
+
+PRIVATE = bytes([0x80]) + (11).to_bytes(8, 'little') + b'foreign\x00\x01\x02\x03'
+
+
+def with_attachments(tmp_path: Path) -> tuple[Path, Path, bytes]:
+    """A bag whose file a foreign writer (``mcap``'s ``Writer``) rewrote with this package's
+    schemas, channels, messages and metadata records (``rosbag2``, ``sapga``,
+    ``sapga_channel``) in small chunks, an attachment and a metadata record of its own
+    after every 40 messages and a private record: (bag, file, its bytes)."""
+    bag = tmp_path / 'b'
+    write_episodes(bag, 3, 200, chunk_size=1024).close()
+    path = bag / 'b_0.mcap'
+    with open(path, 'rb') as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        metadata = list(reader.iter_metadata())
+        messages = list(reader.iter_messages(log_time_order=False))
+    out = io.BytesIO()
+    writer = Writer(out, chunk_size=1024, compression=CompressionType.ZSTD)
+    writer.start(profile='ros2', library='foreign')
+    for s in summary.schemas.values():
+        assert writer.register_schema(s.name, s.encoding, s.data) == s.id
+    for c in summary.channels.values():
+        assert writer.register_channel(c.topic, c.message_encoding, c.schema_id,
+                                       dict(c.metadata)) == c.id
+    for m in metadata[:len(metadata) // 2]:
+        writer.add_metadata(m.name, dict(m.metadata))
+    for k, (_, channel, m) in enumerate(messages):
+        writer.add_message(channel.id, m.log_time, m.data, m.publish_time, m.sequence)
+        if k % 40 == 39:
+            writer.add_attachment(k, k + 1, f'scene{k}.png', 'image/png', bytes([k % 251]) * k)
+            writer.add_metadata(f'note{k}', {'k': str(k)})
+        if k == 100:    # a private record: the writer has written all but its open chunk
+            out.write(PRIVATE)
+    for m in metadata[len(metadata) // 2:]:
+        writer.add_metadata(m.name, dict(m.metadata))
+    writer.finish()
+    path.write_bytes(out.getvalue())
+    return bag, path, out.getvalue()
+
+
+def held(path: Path) -> tuple[list, list]:
+    """The attachments and metadata records ``mcap``'s random-access reader finds through the
+    summary's indexes."""
+    with open(path, 'rb') as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        assert len(summary.attachment_indexes) == summary.statistics.attachment_count
+        assert len(summary.metadata_indexes) == summary.statistics.metadata_count
+        return list(reader.iter_attachments()), list(reader.iter_metadata())
+
+
+def whole(places: list[tuple[int, int, object]], end: int, kind: type) -> list:
+    return [r for _, stop, r in places if isinstance(r, kind) and stop <= end]
+
+
+@pytest.mark.parametrize('damage', ['cut', 'chunk'])
+def test_reindex_keeps_every_intact_attachment_and_metadata_record(tmp_path, capsys, damage):
+    """A file cut short (a killed writer) or with a damaged chunk is rewritten with every
+    intact attachment and metadata record (``sapga``'s own included), indexed in the summary,
+    and the report counts them."""
+    bag, path, intact = with_attachments(tmp_path)
+    places = layout(intact)
+    chunks = chunk_places(intact)
+    if damage == 'cut':
+        end = (chunks[-4][0] + chunks[-4][1]) // 2
+        damaged = intact[:end]
+    else:
+        end = len(intact)
+        start, stop, _ = chunks[len(chunks) // 2]
+        damaged = bytearray(intact)
+        damaged[(start + stop) // 2] ^= 0x10
+        damaged = bytes(damaged)
+    path.write_bytes(damaged)
+    attachments, metadata = whole(places, end, Attachment), whole(places, end, Metadata)
+    assert len(attachments) >= 10 and {'sapga', 'rosbag2'} <= {m.name for m in metadata}
+    assert cli.main(['bag', 'reindex', str(bag)]) == (0 if damage == 'cut' else 1)
+    got_attachments, got_metadata = held(path)
+    assert got_attachments == attachments
+    assert got_metadata == metadata
+    out = ''.join(capsys.readouterr())
+    assert f'{len(attachments)} attachments, {len(metadata)} metadata records, 1 private ' \
+        'record' in out, out
+    assert path.read_bytes().count(PRIVATE) == 1
+
+
+@pytest.mark.parametrize('where', ['data', 'length'])
+def test_a_damaged_attachment_is_reported_lost_by_name(tmp_path, capsys, where):
+    """An attachment that does not match its CRC (a byte of its data flipped) or does not
+    parse (its length field) is lost and named; every other attachment, metadata record and
+    message is kept, the original kept beside the repair."""
+    bag, path, intact = with_attachments(tmp_path)
+    places = layout(intact)
+    victim = [p for p in places if isinstance(p[2], Attachment)][3]
+    damaged = bytearray(intact)
+    damaged[(victim[0] + victim[1]) // 2 if where == 'data' else victim[0] + 8] ^= 0x40
+    path.write_bytes(bytes(damaged))
+    assert cli.main(['bag', 'reindex', str(bag)]) == 1
+    err = ''.join(capsys.readouterr())
+    assert f"lost attachment '{victim[2].name}'" in err, err
+    got_attachments, got_metadata = held(path)
+    assert got_attachments == [r for _, _, r in places
+                               if isinstance(r, Attachment) and r != victim[2]]
+    assert got_metadata == whole(places, len(intact), Metadata)
+    assert random_access(path) == decodable(intact, places)
+    assert (bag / f'{path.name}.damaged').read_bytes() == bytes(damaged)
+
+
+@pytest.mark.parametrize('split', ['run', 'episode'])
+def test_the_writers_own_metadata_records_survive_reindex(tmp_path, split):
+    """The ``rosbag2``, ``sapga`` and ``sapga_channel`` records this package's writer puts in
+    each file are all in the file reindex completes after SIGKILL, in the summary's index."""
+    from mcap.reader import NonSeekingReader
+
+    bag = killed_bag(tmp_path, split)
+    path = sorted(bag.glob('*.mcap'))[-1]
+    with open(path, 'rb') as f:
+        before = []
+        try:
+            for m in NonSeekingReader(f).iter_metadata():
+                before.append(m)
+        except Exception:  # noqa: BLE001 - the stream ends without a footer
+            pass
+    assert {'rosbag2', 'sapga', 'sapga_channel'} <= {m.name for m in before}
+    assert cli.main(['bag', 'reindex', str(bag)]) == 0
+    assert held(path) == ([], before)

@@ -105,7 +105,7 @@ def cmd_bag(args: argparse.Namespace) -> int:
     result = reindex(args.path)
     for r in result.files:
         if r.action != 'intact' or r.damage:
-            print(r.report(), file=sys.stderr if r.lost or r.action == 'kept' else sys.stdout)
+            print(r.report(), file=sys.stderr if r.loses else sys.stdout)
     what = (f'repaired {", ".join(p.name for p in result.repaired)}' if result.repaired
             else 'every storage file was complete' if not result.lost
             else 'nothing could be repaired')

@@ -5,7 +5,8 @@ length exactly (``_Exact`` refuses every short read).  A chunk whose record leng
 length field is wrong but whose contents are whole is read by its other length
 (``chunk_by_fields``, ``chunk_by_length``) and one whose stated uncompressed size is wrong
 by its CRC (``resized``): ``salvage.py`` keeps such a chunk only once it decompresses and
-checks.  ``chains`` says whether a plausible record header starts at a position.
+checks.  An attachment is whole only if it matches its CRC (``attachment_check``).
+``chains`` says whether a plausible record header starts at a position.
 """
 from __future__ import annotations
 
@@ -18,8 +19,8 @@ from typing import Any
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import EndOfFile
 from mcap.opcode import Opcode
-from mcap.records import (Channel, Chunk, DataEnd, Footer, Header, Message, MessageIndex,
-                          Metadata, Schema)
+from mcap.records import (Attachment, Channel, Chunk, DataEnd, Footer, Header, Message,
+                          MessageIndex, Metadata, Schema)
 
 from sapga_ros.errors import McapError
 from sapga_ros.recording.chunks import DECOMPRESSORS, MAX_CHUNK_BYTES, Budget
@@ -30,7 +31,7 @@ PARSERS: dict[int, Any] = {Opcode.HEADER: Header, Opcode.FOOTER: Footer,
                            Opcode.SCHEMA: Schema, Opcode.CHANNEL: Channel,
                            Opcode.MESSAGE: Message, Opcode.CHUNK: Chunk,
                            Opcode.MESSAGE_INDEX: MessageIndex, Opcode.METADATA: Metadata,
-                           Opcode.DATA_END: DataEnd}
+                           Opcode.DATA_END: DataEnd, Opcode.ATTACHMENT: Attachment}
 KNOWN_OPCODES = {int(op) for op in Opcode}
 
 
@@ -128,6 +129,27 @@ def resized(chunk: Chunk, budget: Budget) -> Chunk | None:
             or zlib.crc32(raw) != chunk.uncompressed_crc:
         return None
     return dataclasses.replace(chunk, uncompressed_size=len(raw))
+
+
+def attachment_check(mem: Any, pos: int, end: int) -> bool | None:
+    """Whether the attachment record ``pos``..``end`` matches its CRC (None: it has none)."""
+    crc = struct.unpack_from('<I', mem, end - 4)[0]
+    return None if crc == 0 else zlib.crc32(mem[pos + 9:end - 4]) == crc
+
+
+def attachment_name(mem: Any, pos: int, size: int) -> str | None:
+    """The name field of a damaged attachment record at ``pos``, if it still reads."""
+    at = pos + 9 + 16
+    if mem[pos] != Opcode.ATTACHMENT or at + 4 > size:
+        return None
+    n = struct.unpack_from('<I', mem, at)[0]
+    if not 0 < n <= 256 or at + 4 + n > size:
+        return None
+    try:
+        name = bytes(mem[at + 4:at + 4 + n]).decode('utf-8')
+    except UnicodeDecodeError:
+        return None
+    return name if name.isprintable() else None
 
 
 def chains(mem: Any, pos: int, size: int) -> bool:

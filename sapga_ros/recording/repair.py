@@ -9,12 +9,15 @@ readers read them) and no ``metadata.yaml``; a flipped bit on disk spoils one ch
    indexes;
 2. rewrites a file that lacks its footer or holds damage with the ``mcap`` library's
    ``Writer`` into a new temporary file of the bag directory (created exclusively, never
-   through a link): header, schemas, channels, then every intact message and metadata
-   record in file order, chunk indexes, summary and footer;
-3. reads the new file back (random access, every message) and only then renames it over
-   the original; a damaged original is kept beside it as ``<file>.damaged`` (a hard link:
-   no copy), so nothing that was on disk is ever gone.  A file from which nothing can be
-   read is left as it is (nothing would be gained);
+   through a link): header, schemas, channels, then every intact message, attachment and
+   metadata record in file order (an attachment that does not match its CRC is lost, and
+   named), every private record byte for byte, chunk, attachment and metadata indexes,
+   summary and footer;
+3. reads the new file back (random access, every message, attachment and metadata record)
+   and only then renames it over the original; a damaged original is kept beside it as
+   ``<file>.damaged`` (a hard link: no copy), so nothing that was on disk is ever gone.
+   A file with no message or attachment left to read is left as it is (nothing would be
+   gained);
 4. writes ``metadata.yaml`` from what the files hold (topics, QoS, counts, times), keeping
    the ``custom_data`` of the last ``rosbag2`` record.
 
@@ -32,7 +35,7 @@ from typing import Any
 
 import yaml
 from mcap.reader import make_reader
-from mcap.records import Channel, Header, Message, Metadata, Schema
+from mcap.records import Attachment, Channel, Header, Message, Metadata, Schema
 from mcap.writer import CompressionType, Writer
 
 from sapga_ros.errors import McapError
@@ -43,7 +46,7 @@ from sapga_ros.recording.metadata import (METADATA_FILE, RECORD_NAME, BagMetadat
                                           TopicInfo)
 from sapga_ros.recording.held import Survey, recount, survey
 from sapga_ros.recording.reader import Recording, bag_files, open_storage
-from sapga_ros.recording.salvage import CUT_SHORT, Damage, Scan, records, scan
+from sapga_ros.recording.salvage import CUT_SHORT, Damage, Private, Scan, records, scan
 
 _COMPRESSION = {'zstd': CompressionType.ZSTD, 'lz4': CompressionType.LZ4,
                 '': CompressionType.NONE}
@@ -60,6 +63,16 @@ class FileRepair:
     lost: dict[str, int] = field(default_factory=dict)     # topic -> messages lost
     counted: bool = True            # every damaged chunk's loss could be counted
     kept_as: Path | None = None     # the damaged original, kept beside the file
+    attachments: int = 0            # attachment records the file holds now
+    metadata: int = 0               # metadata records the file holds now
+    private: int = 0                # private records (opcode 0x80 and above) kept
+    lost_records: list[str] = field(default_factory=list)   # "attachment 'name'", ...
+
+    @property
+    def loses(self) -> bool:
+        """Whether damage cost (or may have cost) data, or the file could not be repaired."""
+        return bool(self.lost or self.lost_records or not self.counted
+                    or self.action == 'kept')
 
     def report(self) -> str:
         """One line on what was found and done."""
@@ -78,6 +91,8 @@ class FileRepair:
             lost = ', '.join(f'{t} {n}' for t, n in sorted(self.lost.items()))
             parts.append(f'{sum(self.lost.values())} messages of undefined channels lost '
                          f'({lost})')
+        if self.lost_records:
+            parts.append(f'lost {", ".join(self.lost_records)}')
         if cut:
             parts.append(f'the last {cut[0].end - cut[0].start} bytes are an unfinished '
                          'record (the writer was stopped)')
@@ -87,7 +102,10 @@ class FileRepair:
             parts.append('its summary or indexes did not match its messages')
         what = {'intact': 'complete and intact', 'repaired': 'rewritten complete',
                 'kept': 'left unchanged: nothing readable to keep'}[self.action]
-        return f'{self.path}: {what}, {self.messages} messages' + ''.join(
+        kept = ''.join(f', {n} {noun}{"" if n == 1 else "s"}' for n, noun in (
+            (self.attachments, 'attachment'), (self.metadata, 'metadata record'),
+            (self.private, 'private record')) if n and self.action != 'kept')
+        return f'{self.path}: {what}, {self.messages} messages{kept}' + ''.join(
             f'; {p}' for p in parts)
 
 
@@ -98,8 +116,11 @@ def refuse_link(path: Path) -> None:
                         'through a link')
 
 
-def _write(out_f: Any, f: Any, found: Scan) -> int:
-    """Write the intact records of ``found`` as a complete MCAP file; the message count."""
+def _write(out_f: Any, f: Any, found: Scan) -> tuple[int, int, int]:
+    """Write the intact records of ``found`` as a complete MCAP file; the messages,
+    attachments and metadata records written.  A private record goes straight to
+    ``out_f``: the ``Writer`` has written every record it was given (it holds back only
+    the messages of the open chunk), so ``out_f`` is at a record boundary."""
     header = found.header or Header(profile='ros2', library='')
     writer = Writer(out_f, compression=_COMPRESSION.get(found.compression,
                                                         CompressionType.ZSTD))
@@ -109,7 +130,7 @@ def _write(out_f: Any, f: Any, found: Scan) -> int:
     channels = {cid: writer.register_channel(c.topic, c.message_encoding,
                                              schemas.get(c.schema_id, 0), dict(c.metadata))
                 for cid, c in sorted(found.channels.items())}
-    count = 0
+    count = attachments = metadata = 0
     for r in records(f, found, Budget.streaming()):
         if isinstance(r, Message) and r.channel_id in channels:
             writer.add_message(channels[r.channel_id], r.log_time, r.data, r.publish_time,
@@ -117,22 +138,32 @@ def _write(out_f: Any, f: Any, found: Scan) -> int:
             count += 1
         elif isinstance(r, Metadata):
             writer.add_metadata(r.name, dict(r.metadata))
+            metadata += 1
+        elif isinstance(r, Attachment):
+            writer.add_attachment(r.create_time, r.log_time, r.name, r.media_type, r.data)
+            attachments += 1
+        elif isinstance(r, Private):
+            out_f.write(r.raw)
         elif not isinstance(r, (Header, Schema, Channel, Message)):
             raise McapError(f'{found.path}: unexpected record {type(r).__name__}')
     writer.finish()
-    return count
+    return count, attachments, metadata
 
 
-def _verify(tmp: str, count: int, path: Path) -> None:
-    """McapError unless ``tmp`` reads back complete, at random access, with ``count``."""
+def _verify(tmp: str, counts: tuple[int, int, int], path: Path) -> None:
+    """McapError unless ``tmp`` reads back complete, at random access, with ``counts``
+    messages, attachments and metadata records, each found through the summary."""
     with open(tmp, 'rb') as f:
         reader = make_reader(f)
         if reader.get_summary() is None:
             raise McapError(f'{path}: the rewritten copy has no summary; left unchanged')
-        back = sum(1 for _ in reader.iter_messages(log_time_order=False))
-    if back != count:
-        raise McapError(f'{path}: the rewritten copy reads back {back} of {count} '
-                        'messages; left unchanged')
+        back = (sum(1 for _ in reader.iter_messages(log_time_order=False)),
+                sum(1 for _ in reader.iter_attachments()),
+                sum(1 for _ in reader.iter_metadata()))
+    if back != counts:
+        raise McapError(f'{path}: the rewritten copy reads back {back[0]} of {counts[0]} '
+                        f'messages, {back[1]} of {counts[1]} attachments and {back[2]} of '
+                        f'{counts[2]} metadata records; left unchanged')
 
 
 def _indexed(f: Any, found: Scan) -> bool:
@@ -169,13 +200,16 @@ def repair_file(path: str | os.PathLike) -> FileRepair:
     with open_storage(path) as f:
         found = scan(f, str(path), Budget.streaming())
         lost, counted = found.lost()
-        result = FileRepair(path, 'intact', found.kept, found.damage, lost, counted)
-        if found.header is None and not found.kept:
+        result = FileRepair(path, 'intact', found.kept, found.damage, lost, counted,
+                            attachments=found.attachments, metadata=found.metadata,
+                            lost_records=list(found.lost_records.values()),
+                            private=len(found.skipped))
+        if found.header is None and not (found.kept or found.attachments or found.metadata):
             raise McapError(f'{path}: no MCAP record can be read: not an MCAP file, or '
                             'nothing left of one')
         if found.footer and not found.damage and not found.orphans and _indexed(f, found):
             return result
-        if not found.kept and found.damage:
+        if not (found.kept or found.attachments) and found.damage:
             result.action = 'kept'
             return result
         result.action = 'repaired'
@@ -193,14 +227,14 @@ def _rewrite(path: Path, f: Any, found: Scan, result: FileRepair) -> None:
     try:
         os.fchmod(fd, stat.S_IMODE(os.fstat(f.fileno()).st_mode))
         with os.fdopen(fd, 'wb') as out_f:
-            count = _write(out_f, f, found)
+            counts = _write(out_f, f, found)
             out_f.flush()
             os.fsync(out_f.fileno())
-        _verify(tmp, count, path)
+        _verify(tmp, counts, path)
         if any(d.why != CUT_SHORT for d in found.damage):
             result.kept_as = _keep_original(path)
         os.replace(tmp, path)
-        result.messages = count
+        result.messages, result.attachments, result.metadata = counts
     except OSError as exc:
         raise McapError(f'{path}: cannot rewrite ({exc.strerror or exc}); left '
                         'unchanged') from exc
@@ -246,9 +280,8 @@ class ReindexResult:
 
     @property
     def lost(self) -> bool:
-        """Whether damage cost (or may have cost) messages, or a file could not be
-        repaired."""
-        return any(r.lost or not r.counted or r.action == 'kept' for r in self.files)
+        """Whether damage cost (or may have cost) data, or a file could not be repaired."""
+        return any(r.loses for r in self.files)
 
 
 def reindex(path: str | os.PathLike) -> ReindexResult:

@@ -17,6 +17,13 @@ which no other record has before it) or, in a finished file, the summary's chunk
 that a chunk was lost there and what it held; a private record neither points to is skipped.
 Every length field is checked against the bytes left before it is used.
 
+Attachments and metadata records (the data this package's writer puts beside the messages,
+and whatever a foreign writer puts there) are kept like messages, and a private record
+(opcode 0x80 and above) byte for byte (``Private``) unless it proves to be a damaged chunk.
+An attachment is whole only if it matches its CRC; one that does not, or that a damaged
+region swallowed, is reported lost by name (``Scan.lost_records``), as is, in a finished
+file, every attachment or metadata record the summary indexes that was not found whole.
+
 The message indexes that follow a lost chunk say how many messages it held, per channel;
 the loss is reported per topic (``Scan.lost``), or as unknown when they are lost too.  The
 file's schemas and channels come from every intact chunk, for a finished file from the
@@ -37,15 +44,17 @@ from typing import Any, Iterator
 
 from mcap.opcode import Opcode
 from mcap.reader import make_reader
-from mcap.records import (Channel, Chunk, DataEnd, Footer, Header, Message, MessageIndex,
-                          Metadata, Schema)
+from mcap.records import (Attachment, Channel, Chunk, DataEnd, Footer, Header, Message,
+                          MessageIndex, Metadata, Schema)
 
 from sapga_ros.errors import McapError
 from sapga_ros.recording.chunks import CHANNEL_RECORD, Budget, channel_from, chunk_records
-from sapga_ros.recording.mcap_records import (CUT_SHORT, MAGIC, chains, chunk_by_fields,
+from sapga_ros.recording.mcap_records import (CUT_SHORT, MAGIC, attachment_check,
+                                              attachment_name, chains, chunk_by_fields,
                                               chunk_by_length, parse_at, parse_span, resized)
 
-_SYNC = (Opcode.CHUNK, Opcode.METADATA, Opcode.MESSAGE_INDEX)    # records that prove a resync
+_SYNC = (Opcode.CHUNK, Opcode.METADATA, Opcode.MESSAGE_INDEX,    # records that prove a resync
+         Opcode.ATTACHMENT)
 _DATA = (Header, Schema, Channel, Message, Metadata)
 _ELSEWHERE = {Opcode.HEADER, Opcode.FOOTER, Opcode.CHUNK_INDEX, Opcode.ATTACHMENT_INDEX,
               Opcode.STATISTICS, Opcode.METADATA_INDEX, Opcode.SUMMARY_OFFSET}
@@ -63,6 +72,13 @@ class Damage:
 
 
 @dataclass
+class Private:
+    """A private record of the data section, kept byte for byte (opcode and length too)."""
+
+    raw: bytes
+
+
+@dataclass
 class Scan:
     """What ``scan`` found in one file."""
 
@@ -76,7 +92,10 @@ class Scan:
     per_channel: dict[int, int] = field(default_factory=dict)   # intact messages
     compression: str = ''
     footer: bool = False
-    skipped: list[tuple[int, int]] = field(default_factory=list)   # unread data records
+    skipped: list[tuple[int, int]] = field(default_factory=list)   # private data records
+    attachments: int = 0        # intact attachment records
+    metadata: int = 0           # intact metadata records
+    lost_records: dict[int, str] = field(default_factory=dict)   # start -> "attachment 'x'"
 
     def topic(self, channel_id: int) -> str:
         channel = self.channels.get(channel_id)
@@ -119,6 +138,10 @@ def _proves(mem: Any, pos: int, size: int, budget: Budget, where: str) -> int | 
             return end
     except (ValueError, McapError):
         return None
+    if isinstance(record, Attachment):
+        check = attachment_check(mem, pos, end)
+        if check is not None:
+            return end if check else None
     if end in (size, size - len(MAGIC)) or chains(mem, end, size):
         return end
     return None
@@ -178,9 +201,23 @@ class _Walk:
                 self._define(record)
                 if data:
                     scan.spans.append((pos, end))
+            elif isinstance(record, Attachment) and data:
+                if attachment_check(mem, pos, end) is False:
+                    fixed = self._as_chunk(pos)     # a chunk whose opcode byte is damaged?
+                    if fixed is not None:
+                        pos, self.after_chunk = fixed, True
+                        continue
+                    scan.lost_records[pos] = f'attachment {record.name!r}'
+                    scan.damage.append(Damage(pos, end, f'attachment {record.name!r} does '
+                                              'not match its CRC', counted=True))
+                else:
+                    scan.attachments += 1
+                    scan.spans.append((pos, end))
             elif isinstance(record, _DATA) and data:
-                if isinstance(record, Metadata) and record.name == CHANNEL_RECORD:
-                    self.backups.append(record)
+                if isinstance(record, Metadata):
+                    scan.metadata += 1
+                    if record.name == CHANNEL_RECORD:
+                        self.backups.append(record)
                 if isinstance(record, Header):
                     scan.header = scan.header or record
                 elif isinstance(record, Message):
@@ -289,10 +326,14 @@ class _Walk:
     def _damaged(self, pos: int, why: str) -> int | None:
         """Record damage from ``pos``; where reading resumes (None: nowhere)."""
         nxt = _resync(self.mem, pos + 1, self.scan.size, self.budget, self.scan.path)
+        if nxt is None and (why == CUT_SHORT or 'past the end' in why):
+            why = CUT_SHORT         # the record a killed writer left unfinished
+        name = attachment_name(self.mem, pos, self.scan.size)
+        if name is not None and why != CUT_SHORT:
+            self.scan.lost_records[pos] = f'attachment {name!r}'
+            why = f'attachment {name!r}: {why}'
         if nxt is None:
-            self.scan.damage.append(Damage(pos, self.scan.size, CUT_SHORT
-                                           if why == CUT_SHORT or 'past the end' in why
-                                           else why))
+            self.scan.damage.append(Damage(pos, self.scan.size, why))
             return None
         self.open = Damage(pos, nxt, why)
         self.scan.damage.append(self.open)
@@ -313,7 +354,7 @@ def _indexed_chunks(f: Any, found: Scan, mem: Any) -> None:
         index = {c.chunk_start_offset: c for c in summary.chunk_indexes} if summary else {}
     except Exception:  # noqa: BLE001 - a damaged summary indexes nothing
         return
-    for pos, end in found.skipped:
+    for pos, end in list(found.skipped):
         if pos not in index:
             continue
         d = Damage(pos, end, 'a chunk the summary indexes, its opcode byte damaged',
@@ -328,6 +369,26 @@ def _indexed_chunks(f: Any, found: Scan, mem: Any) -> None:
             else:
                 d.counted = False
         found.damage.append(d)
+        found.skipped.remove((pos, end))
+
+
+def _indexed_records(f: Any, found: Scan) -> None:
+    """Name the attachments and metadata records the summary of a finished file indexes
+    where no intact record starts (damaged, or swallowed by a damaged region), by the name
+    the index gives (a damaged attachment's own name field may be what was damaged)."""
+    try:
+        f.seek(0)
+        summary = make_reader(f).get_summary()
+    except Exception:  # noqa: BLE001 - a damaged summary indexes nothing
+        return
+    if summary is None:
+        return
+    starts = {pos for pos, _ in found.spans}
+    for kind, index in (('attachment', summary.attachment_indexes),
+                        ('metadata', summary.metadata_indexes)):
+        for entry in index:
+            if entry.offset not in starts:      # its index names it, whatever it reads
+                found.lost_records[entry.offset] = f'{kind} {entry.name!r}'
 
 
 def scan(f: Any, path: str, budget: Budget) -> Scan:
@@ -338,6 +399,8 @@ def scan(f: Any, path: str, budget: Budget) -> Scan:
         _Walk(result, mem, budget).run()
         if result.footer and result.skipped:
             _indexed_chunks(f, result, mem)
+        if result.footer and result.damage:
+            _indexed_records(f, result)
         return result
     finally:
         if isinstance(mem, mmap.mmap):
@@ -345,10 +408,15 @@ def scan(f: Any, path: str, budget: Budget) -> Scan:
 
 
 def records(f: Any, found: Scan, budget: Budget) -> Iterator[Any]:
-    """The data records of ``found``'s intact spans, in file order, chunks opened."""
+    """The data records of ``found``'s intact spans, in file order, chunks opened, and its
+    private records (``Private``)."""
     mem = _mapped(f)
+    private = set(found.skipped)
     try:
-        for pos, end in found.spans:
+        for pos, end in sorted(found.spans + found.skipped):
+            if (pos, end) in private:
+                yield Private(bytes(mem[pos:end]))
+                continue
             record = parse_span(mem, pos, end)
             if isinstance(record, Chunk):
                 where = f'{found.path}: byte {pos}'
