@@ -20,6 +20,8 @@ from mcap_ros2.decoder import DecoderFactory
 from domains import ros_domain
 from ros_helpers import executable
 from sapga_ros.cli import main as cli
+from sapga_ros.errors import SapgaError
+from sapga_ros.io.outputs import check_output_dir
 from sapga_ros.launch import run_launch
 from sapga_ros.launch.supervisor import ChildExited, Supervisor, exit_code
 from sapga_ros.policies.exemplar import ExemplarPolicy
@@ -134,7 +136,7 @@ def test_outputs_that_are_not_directories_are_refused_before_any_node_starts(
                       (tmp_path / 'file', 'exists and is not a directory'),
                       (tmp_path / 'fifo', 'exists and is not a directory'),
                       (tmp_path / 'file' / 'x', 'is not a folder'),
-                      (tmp_path / 'no' / 'x', 'does not exist')):
+                      (tmp_path / 'file' / 'x' / 'y', 'is not a folder')):
         for name, args in (('swingup', ['--policy', str(tmp_path / 'p.json')]),
                            ('train_deploy', ['--steps', '1000'])):
             assert run_launch(name, [*args, '--out', str(out)]) == 2
@@ -142,7 +144,11 @@ def test_outputs_that_are_not_directories_are_refused_before_any_node_starts(
             lines = [line for line in (got.out + got.err).splitlines()
                      if f'--out {out}' in line]
             assert len(lines) == 1 and said in lines[0] and 'Traceback' not in got.err
-    assert (tmp_path / 'file').read_text() == 'x' and not (tmp_path / 'no').exists()
+    assert (tmp_path / 'file').read_text() == 'x'
+    # folders missing on the way are made (as before): the nearest existing one is checked
+    check_output_dir(tmp_path / 'no' / 'x', '--out', parents=True)
+    with pytest.raises(SapgaError, match='does not exist'):
+        check_output_dir(tmp_path / 'no' / 'x', '--out')
 
 
 # end to end over real nodes -------------------------------------------------------------

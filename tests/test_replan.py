@@ -124,6 +124,38 @@ def test_bounded_scores_decide_what_full_scores_decide(name, rng):
     assert early > 0                      # the bound did stop some scoring early
 
 
+def test_an_entry_after_far_steps_bounds_nothing(rng):
+    """Plans longer than FAR steps: a plan that never enters can score below one entering
+    after FAR steps, so such an entry must not stop the scoring (seeds where it did)."""
+    problem = load_problem('acrobot')
+    n, dim = 30_000, problem.dim
+    s = problem.initial_state.astype(np.float64)
+    late = 0
+    for seed in (0, 4, 17, 29):
+        plans = np.random.default_rng(seed).integers(0, 3, size=(PLAN_LANES, n))
+        full = scores(problem, plans, s, 0, 0.02)
+        got = np.empty(PLAN_LANES)
+        plan_scores(model_id(problem.model), s, plans, 0, n, problem.params(),
+                    np.asarray(problem.action_values, dtype=np.float64), *goal_arrays(problem),
+                    problem.is_angle, 0.02, *BOX, np.empty((dim, PLAN_LANES)),
+                    np.empty(PLAN_LANES), np.empty(PLAN_LANES), np.empty(PLAN_LANES), got,
+                    np.inf)
+        assert got.min() == full.min() and got.argmin() == full.argmin()
+        entered = full == np.floor(full)        # entry steps; FAR (1 + delta*) otherwise
+        late += int(entered.any() and not entered[full.argmin()])
+    assert late > 0          # a never-entering plan did beat every (late) entry
+    for seed in (0, 4):
+        out = []
+        for prune in (True, False):
+            plan = np.random.default_rng(seed).integers(0, 3, size=n)
+            got = improve_plan(model_id(problem.model), s, plan, 0, n, problem.params(),
+                               np.asarray(problem.action_values, dtype=np.float64),
+                               *goal_arrays(problem), problem.is_angle, 0.02, *BOX, 4, 100,
+                               np.uint64(seed), prune)
+            out.append((got, plan.tolist()))
+        assert out[0] == out[1]
+
+
 @pytest.mark.parametrize('name', ['acrobot', 'acrobot_hold'])
 def test_pruned_rounds_keep_the_plans_full_scoring_keeps(name, rng):
     """improve_plan with its rounds pruned: the same plans and scores as scored in full,

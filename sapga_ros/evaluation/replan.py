@@ -85,7 +85,9 @@ def plan_scores(model, s, cand, t0, n, p, actions, best, inv_scale, fixed, is_an
 
     ``bound`` >= 0 asks only which plan scores least when that is <= ``bound``: the
     stepping stops once no plan still outside the goal can score lower (after the step
-    ``bound``, when that is below FAR, or after the step the first plan entered); such a
+    ``bound``, or the step the first plan entered, whichever is first and below FAR: a
+    plan that never enters scores at least FAR, so an entry after FAR steps bounds
+    nothing); such a
     plan scores FAR (1 + its smallest distance so far).  If full scoring's least is <=
     ``bound``, the least score and its first lane are full scoring's and every other score
     is above it; if not, every score is above ``bound`` too.  So a round of
@@ -112,8 +114,8 @@ def plan_scores(model, s, cand, t0, n, p, actions, best, inv_scale, fixed, is_an
                 if d[k] <= goal:
                     first[k] = t - t0 + 1
                     left -= 1
-                    if bound >= 0.0 and first[k] < stop:
-                        stop = first[k]
+                    if bound >= 0.0 and first[k] < stop and first[k] < FAR:
+                        stop = first[k]     # (a plan never entering scores FAR and more)
         if left == 0 or t - t0 + 1 >= stop:
             break
     for k in range(lanes):

@@ -23,20 +23,27 @@ def check_output_file(path: Path, option: str) -> None:
         raise SapgaError(f'{option} {path}: not writable')
 
 
-def check_output_dir(path: Path, option: str) -> None:
+def check_output_dir(path: Path, option: str, parents: bool = False) -> None:
     """Refuse an output directory that cannot be used: one that is a file, or, if it does
-    not exist yet, whose parent folder does not exist or cannot be written."""
+    not exist yet, whose parent folder does not exist or cannot be written.  With
+    ``parents`` (a command that makes the missing folders) the nearest folder that exists
+    is the one that must be a writable folder."""
     if path.exists():
         if not path.is_dir():
             raise SapgaError(f'{option} {path}: exists and is not a directory')
         if not os.access(path, os.W_OK | os.X_OK):
             raise SapgaError(f'{option} {path}: not writable')
         return
-    _check_folder(path, option)
-
-
-def _check_folder(path: Path, option: str) -> None:
     folder = path.parent
+    if parents:
+        while not folder.exists() and folder != folder.parent:
+            folder = folder.parent
+    _check_folder(path, option, folder)
+
+
+def _check_folder(path: Path, option: str, folder: Path | None = None) -> None:
+    """``folder`` (``path``'s, unless given) is a writable folder."""
+    folder = path.parent if folder is None else folder
     if not folder.is_dir():
         what = 'is not a folder' if folder.exists() else 'does not exist'
         raise SapgaError(f'{option} {path}: {folder} {what}')

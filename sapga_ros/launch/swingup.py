@@ -130,7 +130,7 @@ def run_swingup(args: argparse.Namespace, sup: Supervisor) -> SwingupResult:
     if args.replan and (args.delta is not None or args.n_step is not None):
         raise SapgaError('--replan plans for the policy\'s own delta and the problem\'s '
                          'episode length: no --delta or --n-step with it')
-    check_output_dir(Path(args.out), '--out')                  # before any node starts
+    check_output_dir(Path(args.out), '--out', parents=True)    # before any node starts
     opts = StackOptions(problem, Path(args.out).resolve(), policy_delta(policy, args.delta),
                         args.episodes, args.mode, args.real_time_factor, args.engine,
                         args.n_step, args.replan)

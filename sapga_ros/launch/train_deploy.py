@@ -77,7 +77,7 @@ def run_train_deploy(args: argparse.Namespace, sup: Supervisor) -> TrainDeployRe
     """The launch itself, under ``sup`` (which stops the nodes whatever happens)."""
     from sapga_ros.policies.runnable import policy_from_json
     problem = load_problem(args.problem)
-    check_output_dir(Path(args.out), '--out')                  # before any node starts
+    check_output_dir(Path(args.out), '--out', parents=True)    # before any node starts
     out = Path(args.out).resolve()
     delta = problem.resolve('delta', args.delta)
     policy_file = out / 'policy.json'

@@ -204,6 +204,8 @@ def _construct(make_node: Callable[[], Node]) -> Node:
     try:
         return make_node()
     except _rclpy.RCLError as exc:
+        if not rclpy.ok():
+            raise            # Ctrl-C while starting up: the context shut down under it
         text = str(exc).split(', at /')[0]
         if 'incompatible type' in text:
             text += (' (two of this node\'s topics resolve to one name: check its topic '
