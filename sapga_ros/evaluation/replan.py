@@ -84,13 +84,12 @@ def plan_scores(model, s, cand, t0, n, p, actions, best, inv_scale, fixed, is_an
     that never enters it scores FAR (1 + its smallest x'Px / c).
 
     ``bound`` >= 0 asks only which plan scores least when that is <= ``bound``: the
-    stepping stops once no plan still outside the goal can score lower (after the step
-    ``bound``, or the step the first plan entered, whichever is first and below FAR: a
-    plan that never enters scores at least FAR, so an entry after FAR steps bounds
-    nothing); such a
-    plan scores FAR (1 + its smallest distance so far).  If full scoring's least is <=
-    ``bound``, the least score and its first lane are full scoring's and every other score
-    is above it; if not, every score is above ``bound`` too.  So a round of
+    stepping stops once no plan still outside the goal can score lower, after the step
+    ``bound`` or the step the first plan entered, whichever is first and below FAR (a plan
+    that never enters scores at least FAR, so an entry after FAR steps bounds nothing);
+    such a plan scores FAR (1 + its smallest distance so far).  If full scoring's least is
+    <= ``bound``, the least score and its first lane are full scoring's and every other
+    score is above it; if not, every score is above ``bound`` too.  So a round of
     ``improve_plan`` decides as it would on full scores."""
     lanes = cand.shape[0]
     first = np.zeros(lanes, dtype=np.int64)
