@@ -208,6 +208,49 @@ def test_a_nested_episode_event_does_not_kill_the_launchers_ros_thread(ros_conte
         ros.close()
 
 
+def test_an_idempotent_request_without_an_answer_is_sent_again(ros_context):
+    """A server that never answers the first request (as when it has not yet discovered a
+    new client's response reader and drops the response): the launcher's idempotent call
+    sends it again and takes the first answer; a call that is not idempotent sends once."""
+    from rclpy.callback_groups import ReentrantCallbackGroup
+    from rclpy.executors import MultiThreadedExecutor
+    from std_srvs.srv import Trigger
+    from sapga_ros.launch.launch_node import LaunchRos
+    from sapga_ros.launch.supervisor import LaunchError, Supervisor
+
+    release = threading.Event()
+    calls = []
+
+    def answer(request, response):
+        calls.append(1)
+        if len(calls) in (1, 3):
+            release.wait(60.0)      # a lost response: not before the test ends
+            response.message = 'lost'
+        else:
+            response.message = 'again'
+        response.success = True
+        return response
+
+    server = Node('flaky_server', context=ros_context)
+    server.create_service(Trigger, 'flaky', answer, callback_group=ReentrantCallbackGroup())
+    executor = MultiThreadedExecutor(num_threads=3, context=ros_context)
+    executor.add_node(server)
+    spinner = threading.Thread(target=executor.spin, daemon=True)
+    spinner.start()
+    ros = LaunchRos(load_problem('acrobot'))
+    try:
+        assert ros.trigger(Supervisor(), 'flaky', idempotent=True).message == 'again'
+        assert len(calls) == 2
+        with pytest.raises(LaunchError, match='timed out after 8 s waiting for the response'):
+            ros.call(Supervisor(), Trigger, 'flaky', Trigger.Request(), timeout=8.0)
+        assert len(calls) == 3          # sent once
+    finally:
+        release.set()
+        ros.close()
+        executor.shutdown()
+        server.destroy_node()
+
+
 def test_a_raising_callback_is_logged_in_one_line_and_the_node_goes_on(ros_context, capfd):
     """spin_guarded (every node's spin): a callback that raises is one error line; the other
     callbacks keep running."""

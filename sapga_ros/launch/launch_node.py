@@ -28,6 +28,10 @@ from sim_nodes.problem import Problem
 from sim_nodes.ros.common import EVENT_QOS, qos_profile, spin_guarded, stamp_ns, topic_names
 
 CALL_TIMEOUT_S = 30.0      # [s] for a service call to a node
+# [s] before an idempotent request is sent again: a server that has not yet discovered a new
+# client's response reader drops the response ("failed to send response (timeout)", a known
+# race of ROS 2 services under load); asking again is then the only way to get one
+RESEND_S = 5.0
 END_EVENTS = ('goal', 'step_limit', 'end_stop')
 
 
@@ -107,27 +111,39 @@ class LaunchRos:
             pass
 
     def call(self, sup: Supervisor, srv_type: Any, name: str, request: Any,
-             timeout: float = CALL_TIMEOUT_S) -> Any:
-        """Call service ``name`` and wait for the response, watching the children."""
+             timeout: float = CALL_TIMEOUT_S, idempotent: bool = False) -> Any:
+        """Call service ``name`` and wait for the response, watching the children; an
+        ``idempotent`` request is sent again every RESEND_S seconds without an answer (the
+        first answer to any of them is the response)."""
         client = self.node.create_client(srv_type, name)
         try:
             sup.wait(client.service_is_ready, timeout=timeout, what=f'service {name}')
-            future = client.call_async(request)
-            sup.wait(future.done, timeout=timeout, what=f'the response of {name}')
-            return future.result()
+            futures = [client.call_async(request)]
+            resend = [time.monotonic() + RESEND_S]
+
+            def answered() -> Any:
+                done = next((f for f in futures if f.done()), None)
+                if done is None and idempotent and time.monotonic() >= resend[0]:
+                    futures.append(client.call_async(request))
+                    resend[0] = time.monotonic() + RESEND_S
+                return done
+
+            return sup.wait(answered, timeout=timeout,
+                            what=f'the response of {name}').result()
         finally:
             self.node.destroy_client(client)
 
-    def trigger(self, sup: Supervisor, name: str) -> Trigger.Response:
-        """Call a std_srvs/Trigger service."""
-        return self.call(sup, Trigger, name, Trigger.Request())
+    def trigger(self, sup: Supervisor, name: str, idempotent: bool = False) -> Trigger.Response:
+        """Call a std_srvs/Trigger service (``idempotent``: see ``call``)."""
+        return self.call(sup, Trigger, name, Trigger.Request(), idempotent=idempotent)
 
     def set_parameters(self, sup: Supervisor, node: str, values: dict[str, Any]) -> None:
         """Set parameters of ``node``; ``LaunchError`` with the node's reason if refused."""
         request = SetParameters.Request()
         request.parameters = [Parameter(k, value=v).to_parameter_msg()
                               for k, v in values.items()]
-        response = self.call(sup, SetParameters, f'{node}/set_parameters', request)
+        response = self.call(sup, SetParameters, f'{node}/set_parameters', request,
+                             idempotent=True)
         for (key, _), result in zip(values.items(), response.results):
             if not result.successful:
                 raise LaunchError(f'{node} refused {key}: {result.reason}')

@@ -135,7 +135,7 @@ class DeployStack:
         said = ['no answer']
 
         def ready() -> bool:
-            answer = self.ros.trigger(self.sup, f'{RECORDER}/ready')
+            answer = self.ros.trigger(self.sup, f'{RECORDER}/ready', idempotent=True)
             said[0] = answer.message
             return answer.success
 
