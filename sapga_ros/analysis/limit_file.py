@@ -17,14 +17,12 @@ from sapga_ros.analysis.limit import Limit
 from sapga_ros.errors import DataFileError
 from sapga_ros.io import schema
 from sapga_ros.io.jsonfile import read_json
-from sapga_ros.training.run_files import MAX_DELTA_STAR
-from sim_nodes.errors import UnknownProblemError
-from sim_nodes.problem import Problem, load_problem
+from sapga_ros.training.run_files import MAX_DELTA_STAR, configured_problem
+from sim_nodes.problem import Problem
 
 MAX_LIMIT_BYTES = 16 << 20
 MAX_ACTIONS = 10_000_000
 MAX_COUNT = 10 ** 15
-NAME = r'[a-z][a-z0-9_]{0,79}'
 
 
 def limit_document(limit: Limit) -> dict[str, Any]:
@@ -37,12 +35,8 @@ def read_limit(path: str | os.PathLike) -> dict[str, Any]:
     where = str(path)
     doc = schema.mapping(read_json(path, MAX_LIMIT_BYTES), where)
     get = lambda key: schema.field(doc, key, where)   # noqa: E731
-    name = schema.text(get('problem'), f'{where}: problem', pattern=NAME)
-    try:
-        problem = load_problem(name)
-    except UnknownProblemError as exc:
-        raise DataFileError(f'{where}: problem: {exc}') from None
-    out = {'problem': name,
+    problem = configured_problem(get('problem'), f'{where}: problem')
+    out = {'problem': problem.name,
            'delta': schema.number(get('delta'), f'{where}: delta', 0, MAX_DELTA_STAR,
                                   null=True),
            'step': schema.integer(get('step'), f'{where}: step', 0, problem.n_step),

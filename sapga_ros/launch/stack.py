@@ -22,7 +22,7 @@ from sapga_ros.recording.session import free_bag_path, utc_stamp
 from sapga_ros.recording.verify import recording_gaps
 from sim_nodes.models.registry import sim_executable
 from sim_nodes.mujoco_plant import mapping
-from sim_nodes.ros.mujoco_engine import EFFORT_TOPIC
+from sim_nodes.problem_checks import EFFORT_TOPIC
 from sim_nodes.problem import Problem
 
 CONNECT_TIMEOUT_S = 90.0   # [s] for every node to start and join the graph

@@ -21,7 +21,8 @@ import numpy as np
 
 from sapga_ros.errors import DataFileError
 from sapga_ros.io.jsonfile import strict_loads
-from sapga_ros.recording.events import DEFAULT_ROLE_TOPICS, MAX_EVENT_CHARS, ROLE_TYPES
+from sapga_ros.recording.events import MAX_EVENT_CHARS, ROLE_TYPES
+from sim_nodes.problem_checks import DEFAULT_TOPICS
 from sapga_ros.recording.reader import Recording, schema_type
 from sapga_ros.recording.robot import effort_topic
 
@@ -131,7 +132,7 @@ def topic_roles(rec: Recording, problem: Any) -> dict[str, str]:
                 roles[topic] = role
     if len(roles) > (effort is not None):
         return roles
-    names = dict(DEFAULT_ROLE_TOPICS)
+    names = dict(DEFAULT_TOPICS)
     if problem is not None and isinstance(problem.ros.get('topics'), dict):
         names.update(problem.ros['topics'])
     for topic, type_name in types.items():

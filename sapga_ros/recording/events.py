@@ -10,8 +10,6 @@ from __future__ import annotations
 import json
 from typing import Any
 
-from sim_nodes.problem_checks import DEFAULT_TOPICS
-
 # Message type of each role in msg_configs/<problem>.yaml `ros.topics`
 ROLE_TYPES = {
     'state': 'sensor_msgs/msg/JointState',
@@ -22,7 +20,6 @@ ROLE_TYPES = {
     'command_stamped': 'sensor_msgs/msg/JointState',
     'markers': 'visualization_msgs/msg/MarkerArray',
 }
-DEFAULT_ROLE_TOPICS = DEFAULT_TOPICS      # the problem loader's
 # Roles a run may leave without a publisher: the hand-use Float64 command (the policy node
 # answers on command_stamped).  A recorder is ready without one; one that appears is recorded.
 OPTIONAL_ROLES = ('command',)

@@ -345,15 +345,20 @@ def _mapped(f: Any) -> Any:
     return mmap.mmap(f.fileno(), size, access=mmap.ACCESS_READ) if size else b''
 
 
-def _indexed_chunks(f: Any, found: Scan, mem: Any) -> None:
-    """Damage where the summary of a finished file indexes a chunk at a record the walk
-    skipped as another kind (its opcode byte damaged, no message indexes after it)."""
+def _summary(f: Any) -> Any:
+    """The summary section of the finished file ``f``, or None (a damaged summary indexes
+    nothing)."""
     try:
         f.seek(0)
-        summary = make_reader(f).get_summary()
-        index = {c.chunk_start_offset: c for c in summary.chunk_indexes} if summary else {}
+        return make_reader(f).get_summary()
     except Exception:  # noqa: BLE001 - a damaged summary indexes nothing
-        return
+        return None
+
+
+def _indexed_chunks(summary: Any, found: Scan, mem: Any) -> None:
+    """Damage where the summary of a finished file indexes a chunk at a record the walk
+    skipped as another kind (its opcode byte damaged, no message indexes after it)."""
+    index = {c.chunk_start_offset: c for c in summary.chunk_indexes}
     for pos, end in list(found.skipped):
         if pos not in index:
             continue
@@ -372,17 +377,10 @@ def _indexed_chunks(f: Any, found: Scan, mem: Any) -> None:
         found.skipped.remove((pos, end))
 
 
-def _indexed_records(f: Any, found: Scan) -> None:
+def _indexed_records(summary: Any, found: Scan) -> None:
     """Name the attachments and metadata records the summary of a finished file indexes
     where no intact record starts (damaged, or swallowed by a damaged region), by the name
     the index gives (a damaged attachment's own name field may be what was damaged)."""
-    try:
-        f.seek(0)
-        summary = make_reader(f).get_summary()
-    except Exception:  # noqa: BLE001 - a damaged summary indexes nothing
-        return
-    if summary is None:
-        return
     starts = {pos for pos, _ in found.spans}
     for kind, index in (('attachment', summary.attachment_indexes),
                         ('metadata', summary.metadata_indexes)):
@@ -397,10 +395,12 @@ def scan(f: Any, path: str, budget: Budget) -> Scan:
     try:
         result = Scan(path=path, size=len(mem))
         _Walk(result, mem, budget).run()
-        if result.footer and result.skipped:
-            _indexed_chunks(f, result, mem)
-        if result.footer and result.damage:
-            _indexed_records(f, result)
+        summary = _summary(f) if result.footer and (result.skipped or result.damage) \
+            else None
+        if summary is not None and result.skipped:
+            _indexed_chunks(summary, result, mem)
+        if summary is not None and result.damage:
+            _indexed_records(summary, result)
         return result
     finally:
         if isinstance(mem, mmap.mmap):

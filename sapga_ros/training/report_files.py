@@ -19,14 +19,13 @@ from sapga_ros.io import schema
 from sapga_ros.io.jsonfile import read_json
 from sapga_ros.policies.controller_row import MAX_DELAY
 from sapga_ros.training.experiment_set import MAX_SEEDS, MAX_STEPS, METHODS
-from sapga_ros.training.run_files import MAX_COUNT, bounds
+from sapga_ros.training.run_files import MAX_COUNT, bounds, configured_problem
 from sim_nodes.params import DELTA, MAX_EPISODES
 
 MAX_SUMMARY_BYTES = 16 << 20
 MAX_INFO_BYTES = 1 << 20
 MAX_EXPERIMENTS = 10_000
 MAX_GRID = 10_000
-NAME = r'[a-z][a-z0-9_]{0,79}'
 WORD = r'[A-Za-z0-9][A-Za-z0-9_-]{0,39}'
 
 
@@ -113,18 +112,6 @@ def _curve(doc: Any, where: str, length: int, key: str) -> dict:
             for part, low, high in _parts(key)}
 
 
-def _problem(value: Any, where: str) -> str:
-    """A configured problem's name (its policies are evaluated on it)."""
-    from sim_nodes.errors import UnknownProblemError
-    from sim_nodes.problem import load_problem
-    name = schema.text(value, where, pattern=NAME)
-    try:
-        load_problem(name)
-    except UnknownProblemError as exc:
-        raise DataFileError(f'{where}: {exc}') from None
-    return name
-
-
 def check_summary(doc: Any, where: str) -> dict:
     """One experiment's summary, checked."""
     s = schema.mapping(doc, where)
@@ -138,7 +125,7 @@ def check_summary(doc: Any, where: str) -> dict:
         raise DataFileError(f'{where}.method: expected one of {", ".join(METHODS)}, '
                             f'got {method[:40]!r}')
     out = {'id': schema.integer(get('id'), f'{where}.id', 0, MAX_SEEDS),
-           'problem': _problem(get('problem'), f'{where}.problem'),
+           'problem': configured_problem(get('problem'), f'{where}.problem').name,
            'method': method,
            'delta': schema.number(get('delta'), f'{where}.delta', DELTA.low, DELTA.high),
            'steps': steps, 'seeds': seeds, 'grid': grid,

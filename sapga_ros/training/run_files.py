@@ -18,6 +18,8 @@ from typing import Any, Iterator
 from sapga_ros.errors import ConfigError, DataFileError
 from sapga_ros.io import schema
 from sapga_ros.io.jsonfile import read_json
+from sim_nodes.errors import UnknownProblemError
+from sim_nodes.problem import Problem, load_problem
 
 MAX_RUN_BYTES = 16 << 20       # a run of 30 M steps with its policy is about 10 kB
 MAX_RUN_VALUES = 500_000
@@ -25,6 +27,19 @@ MAX_ROWS = 100_000             # log rows of one run
 MAX_COUNT = 10 ** 15
 MAX_VALUE = 1e9                # |value| of a return (real runs: of order 1e4)
 MAX_DELTA_STAR = 1e9           # delta* (real runs: below 10; a goal scaled small: large)
+
+
+PROBLEM_NAME = r'[a-z][a-z0-9_]{0,79}'
+
+
+def configured_problem(value: Any, where: str) -> Problem:
+    """The configured problem a file names at ``where`` (its policies and actions are read
+    against it); one ``DataFileError`` line otherwise."""
+    name = schema.text(value, where, pattern=PROBLEM_NAME)
+    try:
+        return load_problem(name)
+    except UnknownProblemError as exc:
+        raise DataFileError(f'{where}: {exc}') from None
 
 
 def run_path(out: Path, exp_id: int, seed: int) -> Path:

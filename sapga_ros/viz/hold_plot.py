@@ -35,7 +35,7 @@ def _runs(out: Path, s: dict) -> tuple[list[tuple[int, dict]], tuple | None]:
             raise DataFileError(f"{run_path(out, s['id'], seed)}: run.final: missing field "
                                 f"'hold_fraction' (summary row #{s['id']} has hold measures)")
         rows.append((seed, f))
-        key = (f.get('hold_fraction', 0.0), f.get('policy_value', -math.inf))
+        key = (f['hold_fraction'], f.get('policy_value', -math.inf))
         if run.get('policy') is not None and (best_key is None or key > best_key):
             best, best_key = (seed, run['policy']), key
     return rows, best

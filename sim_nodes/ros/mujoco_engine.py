@@ -19,7 +19,6 @@ from sensor_msgs.msg import JointState
 
 from sim_nodes.mujoco_plant import MujocoPlant
 from sim_nodes.problem import Problem
-from sim_nodes.problem_checks import EFFORT_TOPIC  # noqa: F401 (the effort command's topic)
 from sim_nodes.ros.common import MessageError, set_stamp
 
 ENGINES = ('kernel', 'mujoco')

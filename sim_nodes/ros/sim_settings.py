@@ -32,7 +32,8 @@ from sim_nodes.params import DELTA, N_STEP, Param
 from sim_nodes.problem import Problem
 from sim_nodes.ros.common import QOS_PROFILES
 from sim_nodes.ros.executors import DEFAULT_EXECUTOR, EXECUTORS
-from sim_nodes.ros.mujoco_engine import EFFORT_TOPIC, ENGINES
+from sim_nodes.problem_checks import EFFORT_TOPIC
+from sim_nodes.ros.mujoco_engine import ENGINES
 from sim_nodes.ros.params import check, declare
 from sim_nodes.ros.recorder_gate import gate_parameters
 
